@@ -1,0 +1,58 @@
+"""Keep DDS on this machine.
+
+Every process the project starts calls :func:`apply_local_dds_env` before ``rclpy.init()`` (or
+passes :func:`local_dds_env` to a child process). The user can still override any of the three
+variables on purpose; nothing here imports rclpy.
+"""
+from __future__ import annotations
+
+import os
+import pathlib
+from typing import Mapping, MutableMapping
+
+#: Default private domain id; tests add a per-session offset.
+DEFAULT_DOMAIN_ID = 42
+
+
+def project_root() -> pathlib.Path:
+    """The repository root (the folder holding config/)."""
+    here = pathlib.Path(__file__).resolve()
+    for parent in here.parents:
+        if (parent / "config" / "fastdds_localhost.xml").is_file():
+            return parent
+    env_root = os.environ.get("CLIMB_ROOT")
+    if env_root:
+        return pathlib.Path(env_root)
+    raise FileNotFoundError("cannot find the project's config/ folder; set CLIMB_ROOT")
+
+
+def fastdds_profile_path() -> pathlib.Path:
+    return project_root() / "config" / "fastdds_localhost.xml"
+
+
+def local_dds_env(base: Mapping[str, str] | None = None, domain_id: int | None = None) -> dict[str, str]:
+    """Return a copy of ``base`` (default: os.environ) with the loopback DDS settings filled in.
+
+    Values already present in ``base`` win, except ``domain_id`` when given explicitly.
+    """
+    env = dict(os.environ if base is None else base)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(fastdds_profile_path()))
+    env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+    if domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(domain_id)
+    else:
+        env.setdefault("ROS_DOMAIN_ID", str(DEFAULT_DOMAIN_ID))
+    # A child venv Python must re-run the ROS wheels' bootstrap itself (FIELD_NOTES).
+    env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
+    return env
+
+
+def apply_local_dds_env(environ: MutableMapping[str, str] | None = None, domain_id: int | None = None) -> None:
+    """Set the loopback DDS variables in this process (call before rclpy.init())."""
+    target = os.environ if environ is None else environ
+    for key, value in local_dds_env(target, domain_id).items():
+        if key == "_ROS_WHEELS_BOOTSTRAP_COMPLETE":
+            continue
+        if target.get(key) != value:
+            target[key] = value

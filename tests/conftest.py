@@ -1,0 +1,19 @@
+"""Test session setup: keep DDS on loopback with a private domain, before anything imports rclpy."""
+from __future__ import annotations
+
+import os
+import pathlib
+import sys
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+# A private domain per session (the test runner's pid spreads concurrent runs over 0..101).
+if "ROS_DOMAIN_ID" not in os.environ or os.environ.get("CLIMB_TEST_PRIVATE_DOMAIN", "1") == "1":
+    os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 100)
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(ROOT / "config" / "fastdds_localhost.xml")
+os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+os.environ.setdefault("CLIMB_ROOT", str(ROOT))
+
+if str(ROOT / "tests") not in sys.path:
+    sys.path.insert(0, str(ROOT / "tests"))
