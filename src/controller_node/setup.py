@@ -14,5 +14,5 @@ setup(
     zip_safe=True,
     description="Whole-body QP, contact FSM and compliance controller: library + lifecycle node.",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={"console_scripts": ["controller = controller_node.node:main"]},
 )

@@ -14,5 +14,5 @@ setup(
     zip_safe=True,
     description="Guide path, contact search, physics-constrained IK, motion primitives and their adaptation: library + nodes.",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={"console_scripts": ["primitive_adaptation = planner_node.adaptation_node:main"]},
 )

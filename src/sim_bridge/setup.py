@@ -14,5 +14,5 @@ setup(
     zip_safe=True,
     description="PyBullet stand-in for the humanoid's hardware: library + thin node.",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={"console_scripts": ["sim_bridge = sim_bridge.node:main"]},
 )
