@@ -1,0 +1,445 @@
+"""Holds from a robot contact surface and an environment surface, and their target poses.
+
+A hold (see :mod:`climb_core.contact`) is the set of point contacts between one limb and one
+environment surface. This module builds them from the robot model (its contact surfaces) and the
+environment (its rungs, rails, treads, ground), and gives back the pose the limb must take so
+that the contact is made, for the IK.
+
+Geometry (all world frame):
+
+- hand ``grasp`` on a cylinder (rung, rail): 8 points on the cylinder surface, two rings of four
+  around the grasp centre (the rings ``grasp_ring_spacing`` apart along the axis, the second ring
+  turned by 45 deg), normals radially outward; bilateral, ``grip_force_limit`` = the robot's grip
+  strength. Target: the grasp cylinder axis along the environment cylinder axis, its centre on
+  the axis at ``s``; the roll of the hand about the axis puts the palm on the robot's side of
+  the rung, ``grasp_palm_angle_deg`` above the horizontal (the IK leaves that roll free); of the
+  two axis directions, the one with the limb frame (wrist side) lowest, or closest to a seed.
+- ``sole`` on a flat surface (ground plane, tread, platform, any box top): the sole corners of the
+  target pose, normal = the surface's up normal; unilateral.
+- ``sole`` on a cylinder: 2 points on top of the rung (the rung line under the sole), spaced by
+  the sole width, normals from the rung axis toward the foot; unilateral. Target: the sole
+  tangent to the rung on its top line, its centre (shifted by ``foot_on_rung_offset`` along the
+  foot's forward axis) above the axis, the foot pointing along the ladder's forward direction.
+
+``s`` is the position along the surface axis (local x of the surface; cylinders are along local
+x) measured from the surface centre [m]. On the ground plane the sole centre is given by
+``position`` (world) and the foot heading by ``yaw`` (rad, about world z).
+
+Robot surface frames (climb_core.robot.ContactSurface.T_frame_surface): origin at the sole centre
+/ grasp centre, z axis = the contact normal out of the robot (sole: from the foot into what it
+stands on, checked once per robot on the reference posture, :func:`sole_normal_sign`; grasp: out
+of the palm toward the grasped axis), grasp cylinder axis = ``ContactSurface.axis``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .contact import HANDS, LIMBS, ContactPoint, Hold
+from .errors import SpecError
+from .params import param
+
+WORLD_UP = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class HoldParams:
+    grasp_ring_spacing: float = param(0.04, unit="m", min=0.0, description=(
+        "distance along the cylinder axis between the two rings of four grasp points"))
+    grasp_palm_angle_deg: float = param(30.0, unit="deg", min=-90.0, max=90.0, description=(
+        "roll of a grasp about the cylinder axis: the palm sits on the robot's side of the rung, "
+        "this far above the horizontal through the axis (90 = palm on top)"))
+    foot_on_rung_offset: float = param(0.0, unit="m", description=(
+        "sole centre shift along the foot's forward axis from the rung's top line (positive: "
+        "the heel moves toward the ladder)"))
+    foot_on_rung_spacing: float = param(0.0, unit="m", min=0.0, description=(
+        "distance between the 2 points of a foot on a cylindrical rung; 0 = the sole width"))
+
+
+@dataclass(frozen=True)
+class HoldTarget:
+    """Where a limb must be for its hold: pose of the robot contact surface and of the limb frame."""
+
+    limb: str
+    frame: str  # robot frame the surface is attached to
+    T_world_surface: np.ndarray  # 4x4 target pose of the robot contact surface frame
+    T_world_frame: np.ndarray  # 4x4 target pose of `frame`
+    free_axis_in_surface: np.ndarray | None  # unit axis (surface frame) about which rotation is free (grasp), or None
+    kind: str  # sole_flat | sole_cylinder | grasp
+
+
+# --------------------------------------------------------------------------------------------
+# small geometry helpers
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    if n < 1e-12:
+        raise SpecError("holds.geometry", "degenerate direction (zero vector)")
+    return v / n
+
+
+def _pose(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = p
+    return T
+
+
+def _inv(T: np.ndarray) -> np.ndarray:
+    R = T[:3, :3]
+    return _pose(R.T, -R.T @ T[:3, 3])
+
+
+def _perp(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Component of v perpendicular to the unit axis."""
+    return v - axis * float(axis @ v)
+
+
+def _frame_from_zx(z: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
+    """Rotation whose z column is z and whose x column is x_hint made orthogonal to z."""
+    z = _unit(z)
+    x = _unit(_perp(x_hint, z))
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def _rot_about(axis: np.ndarray, angle: float) -> np.ndarray:
+    a = _unit(axis)
+    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+
+
+# --------------------------------------------------------------------------------------------
+# robot / environment lookups
+
+
+def limb_surface(robot: Any, limb: str) -> Any:
+    """The robot ContactSurface of ``limb``; SpecError for an unknown limb."""
+    if limb not in LIMBS:
+        raise SpecError("hold.limb", f"must be one of {', '.join(LIMBS)}; got {limb!r}")
+    limbs = robot.config.limbs
+    if limb not in limbs:
+        raise SpecError("hold.limb", f"robot {robot.config.name!r} has no limb {limb!r}")
+    return limbs[limb].surface
+
+
+def env_surface(env: Any, surface_name: str) -> Any:
+    if surface_name not in env.surfaces:
+        raise SpecError("hold.env_surface", f"unknown surface {surface_name!r}; the environment has "
+                                            f"{', '.join(sorted(env.surfaces))}")
+    return env.surfaces[surface_name]
+
+
+def ladder_forward(env: Any) -> np.ndarray:
+    """Horizontal unit vector from the robot toward the ladder (the ladder base frame's x)."""
+    try:
+        yaw = math.radians(float(env.scenario.ladder.pose_yaw_deg))
+    except AttributeError:
+        yaw = 0.0
+    return np.array([math.cos(yaw), math.sin(yaw), 0.0])
+
+
+_SIGN_CACHE: dict[int, dict[str, float]] = {}
+
+
+def sole_normal_sign(robot: Any, limb: str) -> float:
+    """+1 if the sole surface z points out of the sole (into the ground) at the reference
+    posture, -1 if it points into the foot. Cached per robot."""
+    per_robot = _SIGN_CACHE.setdefault(id(robot), {})
+    if limb not in per_robot:
+        import pinocchio as pin
+
+        surface = limb_surface(robot, limb)
+        q = robot.q_reference()
+        data = robot.model.createData()
+        pin.framesForwardKinematics(robot.model, data, q)
+        R_world_frame = data.oMf[robot.frame_id(surface.frame)].rotation
+        z_world = R_world_frame @ np.asarray(surface.T_frame_surface)[:3, 2]
+        per_robot[limb] = 1.0 if z_world[2] < 0.0 else -1.0
+    return per_robot[limb]
+
+
+def sole_extent(surface: Any) -> tuple[float, float]:
+    """(length along the surface x, width along the surface y) of a sole polygon [m]."""
+    v = np.asarray(surface.vertices, dtype=float).reshape(-1, 3)
+    if len(v) < 3:
+        raise SpecError(f"robot.{surface.name}.vertices", "a sole needs at least 3 corners")
+    T_sf = np.asarray(surface.T_frame_surface)
+    # vertices are given in the frame; express them in the surface frame
+    v_s = (v - T_sf[:3, 3]) @ T_sf[:3, :3]
+    return float(np.ptp(v_s[:, 0])), float(np.ptp(v_s[:, 1]))
+
+
+def sole_vertices_in_surface(surface: Any) -> np.ndarray:
+    """(n,3) sole corners in the surface frame [m]."""
+    v = np.asarray(surface.vertices, dtype=float).reshape(-1, 3)
+    T_sf = np.asarray(surface.T_frame_surface)
+    return (v - T_sf[:3, 3]) @ T_sf[:3, :3]
+
+
+def grasp_axis_in_surface(surface: Any) -> np.ndarray:
+    T_sf = np.asarray(surface.T_frame_surface)
+    return _unit(T_sf[:3, :3].T @ np.asarray(surface.axis, dtype=float))
+
+
+def _cylinder_axis(sf: Any) -> tuple[np.ndarray, np.ndarray]:
+    T = np.asarray(sf.T_world_surface)
+    return T[:3, 3].copy(), _unit(T[:3, 0].copy())
+
+
+def _flat_top(sf: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(centre of the top face, its up normal, its in-plane x axis) of a plane or box surface."""
+    T = np.asarray(sf.T_world_surface)
+    R = T[:3, :3]
+    # the face whose normal points most upward
+    k = int(np.argmax(np.abs(R[2, :])))
+    n = R[:, k] * np.sign(R[2, k])
+    half = 0.0 if sf.shape == "plane" else float(np.asarray(sf.half_extents)[k])
+    centre = T[:3, 3] + n * half
+    x_axis = R[:, 0] if k != 0 else R[:, 1]
+    return centre, n, x_axis
+
+
+def _top_normal(axis: np.ndarray) -> np.ndarray:
+    """Unit direction perpendicular to a cylinder axis, closest to world up."""
+    return _unit(_perp(WORLD_UP, axis))
+
+
+# --------------------------------------------------------------------------------------------
+# target poses
+
+
+def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0, *,
+                        position: np.ndarray | None = None, yaw: float | None = None,
+                        params: HoldParams | None = None, R_world_surface_seed: np.ndarray | None = None
+                        ) -> tuple[np.ndarray, str]:
+    """(T_world_surface target of the limb's contact surface frame, kind).
+
+    kind: ``grasp`` | ``sole_cylinder`` | ``sole_flat``. ``R_world_surface_seed`` (optional, the
+    current orientation of the robot surface) picks between the two grasp axis directions.
+    """
+    params = params or HoldParams()
+    rs = limb_surface(robot, limb)
+    sf = env_surface(env, surface_name)
+    forward = ladder_forward(env)
+    if not math.isfinite(s):
+        raise SpecError("hold.s", f"must be finite, got {s}")
+    if rs.kind == "grasp":
+        if sf.shape != "cylinder":
+            raise SpecError("hold.env_surface", f"a hand grasp needs a cylinder (rung or rail); "
+                                                f"{surface_name!r} is a {sf.shape}")
+        _check_along(sf, s, surface_name)
+        p0, a = _cylinder_axis(sf)
+        centre = p0 + s * a
+        # the palm sits on the robot's side of the rung, grasp_palm_angle_deg above the horizontal;
+        # the surface normal (out of the palm, toward the rung axis) points from the palm to the axis
+        back = _unit(_perp(-forward, a))
+        up = _perp(_perp(WORLD_UP, a), back)
+        if np.linalg.norm(up) < 1e-9:
+            up = np.cross(a, back)
+            up = -up if up[2] < 0.0 else up
+        up = _unit(up)
+        ang = math.radians(params.grasp_palm_angle_deg)
+        normal_w = -(math.cos(ang) * back + math.sin(ang) * up)
+        axis_s = grasp_axis_in_surface(rs)
+        normal_s = _unit(_perp(np.array([0.0, 0.0, 1.0]), axis_s))
+        S = np.column_stack([axis_s, np.cross(normal_s, axis_s), normal_s])
+        T_fs = np.asarray(rs.T_frame_surface)
+        frame_origin_s = -(T_fs[:3, :3].T @ T_fs[:3, 3])
+        candidates = []
+        for sign in (1.0, -1.0):
+            W = np.column_stack([sign * a, np.cross(normal_w, sign * a), normal_w])
+            R = W @ S.T
+            if R_world_surface_seed is not None:
+                score = float(np.trace(R.T @ np.asarray(R_world_surface_seed)))
+            else:  # the arm comes from below: the limb frame (wrist side) lowest
+                score = -float((R @ frame_origin_s)[2])
+            candidates.append((score, sign, R))
+        _, _, R = max(candidates, key=lambda c: (c[0], c[1]))
+        return _pose(R, centre), "grasp"
+
+    if rs.kind not in ("sole", "palm"):
+        raise SpecError(f"robot.{rs.name}.kind", f"unknown contact surface kind {rs.kind!r}")
+    sign = sole_normal_sign(robot, limb) if rs.kind == "sole" else 1.0
+    if sf.shape == "cylinder":
+        _check_along(sf, s, surface_name)
+        p0, a = _cylinder_axis(sf)
+        n = _top_normal(a)
+        fwd = _perp(forward, n)
+        fwd = _unit(_perp(fwd, a)) if np.linalg.norm(_perp(fwd, a)) > 1e-9 else _unit(np.cross(a, n))
+        centre = p0 + s * a + n * float(sf.radius) - fwd * params.foot_on_rung_offset
+        R = _frame_from_zx(-sign * n, fwd)
+        return _pose(R, centre), "sole_cylinder"
+    if sf.shape in ("plane", "box"):
+        top, n, x_axis = _flat_top(sf)
+        if sf.shape == "plane":
+            if position is None:
+                raise SpecError("hold.position", "a foot on a plane needs the sole centre position")
+            p = np.asarray(position, dtype=float).reshape(3)
+            centre = p - n * float(n @ (p - top))
+        else:
+            _check_along(sf, s, surface_name, axis_length=2.0 * float(np.asarray(sf.half_extents)[0]))
+            centre = top + s * _unit(_perp(x_axis, n))
+            if position is not None:
+                p = np.asarray(position, dtype=float).reshape(3)
+                centre = p - n * float(n @ (p - top))
+        if yaw is None:
+            heading = _perp(forward, n)
+        else:
+            heading = _perp(np.array([math.cos(yaw), math.sin(yaw), 0.0]), n)
+        R = _frame_from_zx(-sign * n, heading)
+        return _pose(R, centre), "sole_flat"
+    raise SpecError("hold.env_surface", f"cannot stand on a {sf.shape} ({surface_name!r})")
+
+
+def _check_along(sf: Any, s: float, surface_name: str, axis_length: float | None = None) -> None:
+    length = float(sf.length) if axis_length is None else axis_length
+    if length > 0.0 and abs(s) > 0.5 * length + 1e-9:
+        raise SpecError("hold.s", f"must lie on {surface_name!r}: |s| <= {0.5 * length:.3f} m, got {s}")
+
+
+def frame_pose_from_surface(robot: Any, limb: str, T_world_surface: np.ndarray) -> np.ndarray:
+    """Pose of the limb's frame for a given pose of its contact surface frame."""
+    rs = limb_surface(robot, limb)
+    return np.asarray(T_world_surface) @ _inv(np.asarray(rs.T_frame_surface))
+
+
+# --------------------------------------------------------------------------------------------
+# holds
+
+
+def make_hold(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0, *,
+              position: np.ndarray | None = None, yaw: float | None = None,
+              friction: float | None = None, grip_force_limit: float | None = None,
+              params: HoldParams | None = None, R_world_surface_seed: np.ndarray | None = None) -> Hold:
+    """The hold of ``limb`` on the environment surface ``surface_name``.
+
+    s: position along the surface axis from its centre [m] (rungs, rails, treads); position /
+    yaw: sole centre [m] and heading [rad] on the ground plane. friction defaults to the
+    surface's, grip_force_limit to the robot's grip strength [N].
+    """
+    params = params or HoldParams()
+    rs = limb_surface(robot, limb)
+    sf = env_surface(env, surface_name)
+    T, kind = surface_target_pose(robot, env, limb, surface_name, s, position=position, yaw=yaw,
+                                  params=params, R_world_surface_seed=R_world_surface_seed)
+    mu = float(sf.friction if friction is None else friction)
+    if not (math.isfinite(mu) and mu > 0.0):
+        raise SpecError("hold.friction", f"must be a positive finite number, got {mu}")
+    if kind == "grasp":
+        p0, a = _cylinder_axis(sf)
+        centre = T[:3, 3]
+        r = float(sf.radius)
+        u = _top_normal(a)
+        w = np.cross(a, u)
+        pts = []
+        for ring, along in enumerate((-0.5 * params.grasp_ring_spacing, 0.5 * params.grasp_ring_spacing)):
+            for k in range(4):
+                ang = 0.5 * math.pi * k + 0.25 * math.pi * ring
+                nrm = math.cos(ang) * u + math.sin(ang) * w
+                pts.append(ContactPoint(centre + along * a + r * nrm, nrm))
+        grip = float(robot.config.grip_strength if grip_force_limit is None else grip_force_limit)
+        if not (math.isfinite(grip) and grip >= 0.0):
+            raise SpecError("hold.grip_force_limit", f"must be a non-negative finite force [N], got {grip}")
+        if limb not in HANDS:
+            raise SpecError("hold.limb", f"only hands grasp; got {limb!r}")
+        return Hold(limb=limb, robot_surface=rs.name, env_surface=surface_name, points=tuple(pts),
+                    friction=mu, bilateral=True, grip_force_limit=grip)
+    if kind == "sole_cylinder":
+        p0, a = _cylinder_axis(sf)
+        n = _top_normal(a)
+        centre_line = p0 + a * float(a @ (T[:3, 3] - p0)) + n * float(sf.radius)
+        _, width = sole_extent(rs)
+        half = 0.5 * (params.foot_on_rung_spacing or width)
+        pts = tuple(ContactPoint(centre_line + sgn * half * a, n) for sgn in (-1.0, 1.0))
+        return Hold(limb=limb, robot_surface=rs.name, env_surface=surface_name, points=pts, friction=mu)
+    # flat sole: the corners at the target pose, normal = surface up
+    _, n, _ = _flat_top(sf)
+    corners = sole_vertices_in_surface(rs) @ T[:3, :3].T + T[:3, 3]
+    # put the corners exactly on the surface plane
+    corners = corners - np.outer((corners - T[:3, 3]) @ n, n)
+    pts = tuple(ContactPoint(c, n) for c in corners)
+    return Hold(limb=limb, robot_surface=rs.name, env_surface=surface_name, points=pts, friction=mu)
+
+
+def hold_from_configuration(robot: Any, env: Any, q: np.ndarray, limb: str, surface_name: str, *,
+                            params: HoldParams | None = None, **kwargs: Any) -> Hold:
+    """The hold of ``limb`` on ``surface_name`` closest to where the limb is at ``q`` (its contact
+    surface projected on the environment surface)."""
+    import pinocchio as pin
+
+    rs = limb_surface(robot, limb)
+    sf = env_surface(env, surface_name)
+    data = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, data, np.asarray(q, dtype=float))
+    T_wf = data.oMf[robot.frame_id(rs.frame)].homogeneous
+    T_ws = T_wf @ np.asarray(rs.T_frame_surface)
+    if sf.shape == "cylinder":
+        p0, a = _cylinder_axis(sf)
+        s = float(a @ (T_ws[:3, 3] - p0))
+        half = 0.5 * float(sf.length)
+        s = min(max(s, -half), half) if half > 0 else s
+        return make_hold(robot, env, limb, surface_name, s, params=params,
+                         R_world_surface_seed=T_ws[:3, :3], **kwargs)
+    _, n, _ = _flat_top(sf)
+    heading = _perp(T_ws[:3, 0], n)
+    yaw = math.atan2(heading[1], heading[0])
+    if sf.shape == "box":
+        return make_hold(robot, env, limb, surface_name, 0.0, position=T_ws[:3, 3], yaw=yaw, params=params,
+                         **kwargs)
+    return make_hold(robot, env, limb, surface_name, position=T_ws[:3, 3], yaw=yaw, params=params, **kwargs)
+
+
+def hold_kind(robot: Any, env: Any, hold: Hold) -> str:
+    rs = limb_surface(robot, hold.limb)
+    sf = env_surface(env, hold.env_surface)
+    if rs.kind == "grasp":
+        return "grasp"
+    return "sole_cylinder" if sf.shape == "cylinder" else "sole_flat"
+
+
+def hold_target(robot: Any, env: Any, hold: Hold, *, params: HoldParams | None = None,
+                R_world_surface_seed: np.ndarray | None = None) -> HoldTarget:
+    """The limb pose that realises ``hold`` (reconstructed from its points)."""
+    rs = limb_surface(robot, hold.limb)
+    sf = env_surface(env, hold.env_surface)
+    kind = hold_kind(robot, env, hold)
+    params = params or HoldParams()
+    if kind in ("grasp", "sole_cylinder"):
+        p0, a = _cylinder_axis(sf)
+        s = float(a @ (hold.centre - p0))
+        T, _ = surface_target_pose(robot, env, hold.limb, hold.env_surface, s, params=params,
+                                   R_world_surface_seed=R_world_surface_seed)
+    else:
+        T = _fit_sole_pose(robot, hold, rs)
+    free = grasp_axis_in_surface(rs) if kind == "grasp" else None
+    return HoldTarget(limb=hold.limb, frame=rs.frame, T_world_surface=T,
+                      T_world_frame=frame_pose_from_surface(robot, hold.limb, T),
+                      free_axis_in_surface=free, kind=kind)
+
+
+def _fit_sole_pose(robot: Any, hold: Hold, rs: Any) -> np.ndarray:
+    """Rigid pose mapping the sole corners (surface frame) onto the hold points (Kabsch)."""
+    v = sole_vertices_in_surface(rs)
+    P = hold.positions
+    if len(P) != len(v):
+        raise SpecError("hold.points", f"a flat sole hold needs {len(v)} points (one per sole corner), "
+                                       f"got {len(P)}")
+    cv, cp = v.mean(axis=0), P.mean(axis=0)
+    H = (v - cv).T @ (P - cp)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    return _pose(R, cp - R @ cv)
+
+
+def target_frame_pose(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0,
+                      **kwargs: Any) -> np.ndarray:
+    """T_world_frame of the limb's end-effector frame for a hold on ``surface_name`` at ``s``."""
+    params = kwargs.pop("params", None)
+    T, _ = surface_target_pose(robot, env, limb, surface_name, s, params=params, **kwargs)
+    return frame_pose_from_surface(robot, limb, T)
+
