@@ -1,0 +1,178 @@
+"""Grasps as force-limited constraints (the documented modelling assumption, docs/sim_bridge.md).
+
+A CLOSE request on a hand whose grasp centre is within the robot's ``capture_range`` of a rung or
+rail axis latches the grasp: a PyBullet fixed constraint between the hand's surface link and the
+rung body, anchored on the axis (``grasp.snap_to_axis``) with the hand's current orientation,
+whose ``maxForce`` is the robot's grip strength. PyBullet caps each constraint row separately, so
+each world axis of the grip force is limited to the grip strength (the norm can reach sqrt(3)
+times it): an overloaded grasp slides. When the grasp centre has slid farther than the capture
+range from its anchor, the fingers have lost the rung: the grasp is reported as slipped and
+released. The fingers are driven closed (finger joints, position servo) but they never carry the
+load; collisions between the hand's links and the grasped body are off while latched and come
+back once they no longer overlap after release.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from . import frames
+from .params import GraspParams
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .pybullet_backend import PyBulletBackend
+
+GRASPABLE_ROLES = ("rung", "rail")
+
+
+@dataclass
+class Grasp:
+    hand: str
+    surface: str  # environment surface name
+    body: int  # PyBullet body of the surface
+    constraint: int  # PyBullet constraint id
+    anchor_in_body: np.ndarray  # (3,) [m] the anchor point in the surface body's frame
+    distance_at_latch: float  # [m] grasp centre to axis when it latched
+
+
+@dataclass
+class GraspManager:
+    backend: "PyBulletBackend"
+    params: GraspParams
+    latched: dict[str, Grasp] = field(default_factory=dict)
+    _filtered: list[tuple[str, int]] = field(default_factory=list)  # (hand, body) collisions to restore
+
+    # -- geometry -----------------------------------------------------------------------------
+    def nearest_axis_point(self, hand: str) -> tuple[str, np.ndarray, float]:
+        """(surface name, closest point on its axis segment [m], distance [m]) over every rung and
+        rail; ("", centre, inf) when the ladder has none."""
+        b = self.backend
+        centre = b.surface_pose(hand)[:3, 3]
+        best = ("", centre, float("inf"))
+        for name, surface in b.env.surfaces.items():
+            if surface.role not in GRASPABLE_ROLES or surface.shape != "cylinder":
+                continue
+            T = b.surface_frame(name)
+            axis = T[:3, 0]
+            s = float(np.clip(axis @ (centre - T[:3, 3]), -0.5 * surface.length, 0.5 * surface.length))
+            point = T[:3, 3] + s * axis
+            dist = float(np.linalg.norm(centre - point))
+            if dist < best[2]:
+                best = (name, point, dist)
+        return best
+
+    # -- requests -----------------------------------------------------------------------------
+    def close(self, hand: str, fraction: float) -> None:
+        b = self.backend
+        b.set_finger_target(hand, fraction)
+        if hand in self.latched:
+            return
+        name, point, dist = self.nearest_axis_point(hand)
+        capture = b.robot.config.capture_range
+        if dist > capture:
+            where = f"nearest graspable surface {name} is {dist * 100:.1f} cm away" if name else "no rung or rail"
+            b._emit("grasp_failed", f"{hand}: close without latching: {where} (capture range "
+                    f"{capture * 100:.1f} cm)", 1, hand=hand, distance_m=f"{dist:.4f}")
+            return
+        self._latch(hand, name, point if self.params.snap_to_axis else b.surface_pose(hand)[:3, 3], dist)
+
+    def open(self, hand: str) -> None:
+        self.backend.set_finger_target(hand, 0.0)
+        self.release(hand, "opened")
+
+    def position(self, hand: str, fraction: float) -> None:
+        self.backend.set_finger_target(hand, fraction)
+        if fraction < self.params.release_position:
+            self.release(hand, f"fingers opened to {fraction:.2f}")
+
+    # -- constraint ---------------------------------------------------------------------------
+    def _latch(self, hand: str, surface: str, anchor_world: np.ndarray, dist: float) -> None:
+        b = self.backend
+        p, cid = b.p, b.client
+        link = b.limb_link[hand]
+        body = b.env_bodies[surface]
+        T_inertial_surface = frames.inverse(b.T_link_inertial[link]) @ b.T_link_surface[hand]
+        pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
+        T_world_body = frames.pose_matrix(pos, orn)
+        R_world_hand_surface = b.surface_pose(hand)[:3, :3]
+        anchor_in_body = T_world_body[:3, :3].T @ (anchor_world - T_world_body[:3, 3])
+        R_body_frame = T_world_body[:3, :3].T @ R_world_hand_surface
+        constraint = p.createConstraint(
+            b.body, link, body, -1, p.JOINT_FIXED, [0.0, 0.0, 0.0],
+            parentFramePosition=T_inertial_surface[:3, 3].tolist(),
+            childFramePosition=anchor_in_body.tolist(),
+            parentFrameOrientation=frames.matrix_to_quat(T_inertial_surface[:3, :3]).tolist(),
+            childFrameOrientation=frames.matrix_to_quat(R_body_frame).tolist(), physicsClientId=cid)
+        p.changeConstraint(constraint, maxForce=b.grip_strength, erp=self.params.constraint_erp, physicsClientId=cid)
+        self._set_hand_collision(hand, body, False)
+        self._filtered = [(h, bd) for h, bd in self._filtered if not (h == hand and bd == body)]
+        self.latched[hand] = Grasp(hand, surface, body, constraint, anchor_in_body, dist)
+        b._emit("grasp", f"{hand} latched on {surface} ({dist * 100:.1f} cm from its axis, grip "
+                f"{b.grip_strength:.0f} N)", 0, hand=hand, surface=surface, distance_m=f"{dist:.4f}")
+
+    def release(self, hand: str, why: str) -> None:
+        grasp = self.latched.pop(hand, None)
+        if grasp is None:
+            return
+        b = self.backend
+        b.p.removeConstraint(grasp.constraint, physicsClientId=b.client)
+        self._filtered.append((hand, grasp.body))
+        kind = "slip" if why.startswith("slipped") else "release"
+        b._emit(kind, f"{hand} released {grasp.surface}: {why}", 2 if kind == "slip" else 0,
+                hand=hand, surface=grasp.surface)
+
+    def set_max_force(self, newtons: float) -> None:
+        b = self.backend
+        for grasp in self.latched.values():
+            b.p.changeConstraint(grasp.constraint, maxForce=newtons, physicsClientId=b.client)
+
+    def surface_moved(self, name: str, offset: np.ndarray) -> None:
+        """A rung / rail was moved: its anchors are in its body frame and follow it."""
+
+    def anchor_world(self, grasp: Grasp) -> np.ndarray:
+        b = self.backend
+        pos, orn = b.p.getBasePositionAndOrientation(grasp.body, physicsClientId=b.client)
+        return frames.pose_matrix(pos, orn)[:3, :3] @ grasp.anchor_in_body + np.asarray(pos)
+
+    def slide(self, hand: str) -> float:
+        """[m] distance between the hand's grasp centre and its anchor."""
+        grasp = self.latched[hand]
+        return float(np.linalg.norm(self.backend.surface_pose(hand)[:3, 3] - self.anchor_world(grasp)))
+
+    def update(self) -> None:
+        """Once per tick: slipped grasps are lost; released hands get their collisions back."""
+        b = self.backend
+        capture = b.robot.config.capture_range
+        for hand in list(self.latched):
+            slide = self.slide(hand)
+            if slide > capture + self.latched[hand].distance_at_latch:
+                self.release(hand, f"slipped {slide * 100:.1f} cm (grip strength {b.grip_strength:.0f} N exceeded)")
+        still = []
+        for hand, body in self._filtered:
+            if hand in self.latched and self.latched[hand].body == body:
+                continue
+            if self._overlaps(hand, body):
+                still.append((hand, body))
+            else:
+                self._set_hand_collision(hand, body, True)
+        self._filtered = still
+
+    def _overlaps(self, hand: str, body: int) -> bool:
+        b = self.backend
+        return any(b.p.getClosestPoints(b.body, body, 0.0, linkIndexA=link, physicsClientId=b.client)
+                   for link in b.limb_links[hand])
+
+    def _set_hand_collision(self, hand: str, body: int, enable: bool) -> None:
+        b = self.backend
+        for link in b.limb_links[hand]:
+            b.p.setCollisionFilterPair(b.body, body, link, -1, int(enable), physicsClientId=b.client)
+
+    def latched_surfaces(self) -> dict[str, str]:
+        return {hand: (self.latched[hand].surface if hand in self.latched else "") for hand in ("left_hand", "right_hand")}
+
+    def constraint_force(self, hand: str) -> np.ndarray:
+        """The constraint's applied force/torque of a latched grasp (PyBullet getConstraintState)."""
+        grasp = self.latched[hand]
+        return np.asarray(self.backend.p.getConstraintState(grasp.constraint, physicsClientId=self.backend.client))

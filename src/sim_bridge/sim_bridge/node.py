@@ -1,0 +1,306 @@
+"""The `sim_bridge` executable: a thin rclpy node around sim_bridge.bridge.SimBridge.
+
+Messages in -> SimBridge (validation, lock-step, watchdog) -> PyBullet backend -> messages out.
+Parameters: config/nodes/sim_bridge.yaml (``--ros-args --params-file ...`` overrides it); topics and
+their QoS: sim_bridge.topics / docs/sim_bridge.md.
+"""
+from __future__ import annotations
+
+import array
+import sys
+import time
+from typing import Any
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Time
+from climb_msgs.msg import GripperCommand, JointCommand
+from climb_msgs.srv import SimPerturb, SimReset
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import WrenchStamped
+from nav_msgs.msg import Odometry
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu, JointState
+
+from climb_core.errors import ClimbError, SpecError
+from climb_core.params import describe, flatten, parse_params
+from climb_core.ros_env import apply_local_dds_env
+
+from .backend import ResetRequest, SimState
+from .bridge import Diagnostic, SimBridge
+from .commands import GripperRequest, PerturbRequest
+from .params import NODE_NAME, BridgeParams, load_bridge_params
+from .pybullet_backend import PyBulletBackend
+from .topics import TOPICS
+
+_NS = 1_000_000_000
+
+
+def qos(topic: str) -> QoSProfile:
+    spec = TOPICS[topic]
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=spec.depth,
+                      reliability=ReliabilityPolicy.RELIABLE if spec.reliability == "reliable"
+                      else ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+
+
+def to_time(stamp_ns: int) -> Time:
+    return Time(sec=int(stamp_ns // _NS), nanosec=int(stamp_ns % _NS))
+
+
+def to_ns(stamp: Time) -> int:
+    return int(stamp.sec) * _NS + int(stamp.nanosec)
+
+
+_PARAM_TYPES = {"bool": Parameter.Type.BOOL, "int": Parameter.Type.INTEGER, "float": Parameter.Type.DOUBLE,
+                "str": Parameter.Type.STRING, "float_array": Parameter.Type.DOUBLE_ARRAY}
+
+
+class SimBridgeNode(Node):
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        self.params = self._declare_params()
+        self.backend = PyBulletBackend(self.params)
+        self.bridge = SimBridge(self.backend, self.params)
+        p = self.params
+        self.bridge.reset(ResetRequest(robot=p.robot, ladder=p.ladder, initial_posture=p.initial_posture,
+                                       seed=p.seed))
+        self._restart = False
+        self.callbacks = 0  # callbacks run so far (to drain the executor without blocking)
+        self.pub_joints = self.create_publisher(JointState, "joint_states", qos("joint_states"))
+        self.pub_ft = {}
+        self._make_ft_publishers()
+        self.pub_imu = self.create_publisher(Imu, "imu", qos("imu"))
+        self.pub_truth = self.create_publisher(Odometry, "sim/base_truth", qos("sim/base_truth"))
+        self.pub_clock = self.create_publisher(Clock, "/clock", qos("/clock")) if p.execution == "lockstep" else None
+        self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", qos("diagnostics"))
+        self.create_subscription(JointCommand, "joint_command", self._on_command, qos("joint_command"))
+        self.create_subscription(GripperCommand, "gripper_command", self._on_gripper, qos("gripper_command"))
+        self.create_service(SimReset, "sim/reset", self._on_reset)
+        self.create_service(SimPerturb, "sim/perturb", self._on_perturb)
+        self.get_logger().info(f"{p.execution} bridge: {self.backend.robot.config.name} on "
+                               f"{self.backend.scenario.name or 'ladder'}, control period {p.physics.control_period_s} s")
+
+    # -- parameters -----------------------------------------------------------------------------
+    def _declare_params(self) -> BridgeParams:
+        defaults = flatten(load_bridge_params())
+        infos = describe(BridgeParams)
+        for name, value in defaults.items():
+            info = infos[name]
+            if info.is_array and not value:
+                self.declare_parameter(name, Parameter.Type.DOUBLE_ARRAY)
+            else:
+                self.declare_parameter(name, value)
+        values: dict[str, Any] = {}
+        for name in defaults:
+            value = self.get_parameter(name).value
+            values[name] = list(value) if isinstance(value, (list, tuple, array.array)) else value
+        return parse_params(values, BridgeParams, NODE_NAME)
+
+    def _make_ft_publishers(self) -> None:
+        for sensor in self.backend.ft_joints:
+            if sensor not in self.pub_ft:
+                self.pub_ft[sensor] = self.create_publisher(WrenchStamped, f"ft/{sensor}", qos("ft/<sensor>"))
+
+    # -- inputs ---------------------------------------------------------------------------------
+    def _on_command(self, msg: JointCommand) -> None:
+        self.callbacks += 1
+        self.bridge.offer_command(list(msg.names), list(msg.modes), list(msg.values), to_ns(msg.header.stamp),
+                                  time.monotonic())
+
+    def _on_gripper(self, msg: GripperCommand) -> None:
+        self.callbacks += 1
+        try:
+            request = GripperRequest(msg.hand, int(msg.command), float(msg.position), to_ns(msg.header.stamp))
+        except SpecError as err:
+            self._publish_diagnostics([Diagnostic(2, "sim_bridge/gripper", f"rejected gripper_command: {err}",
+                                                  {"field": err.field, "rule": err.rule})])
+            return
+        self.bridge.offer_gripper(request)
+
+    def _on_reset(self, request: SimReset.Request, response: SimReset.Response) -> SimReset.Response:
+        self.callbacks += 1
+        try:
+            self.bridge.reset(ResetRequest(
+                robot=request.robot, ladder=request.ladder or None, initial_posture=request.initial_posture,
+                q=np.asarray(request.q, dtype=float) if len(request.q) else None, seed=int(request.seed)))
+            self._make_ft_publishers()
+            self._restart = True
+            response.success = True
+        except (ClimbError, ValueError, OSError) as err:
+            response.success = False
+            response.error = str(err)
+            self.get_logger().error(f"sim/reset failed: {err}")
+        return response
+
+    def _on_perturb(self, request: SimPerturb.Request, response: SimPerturb.Response) -> SimPerturb.Response:
+        self.callbacks += 1
+        try:
+            self.bridge.offer_perturbation(PerturbRequest(
+                int(request.kind), mass=request.mass, radius=request.radius, speed=request.speed,
+                target_link=request.target_link, rung=int(request.rung), dx=request.dx, dy=request.dy,
+                dz=request.dz, at_time=request.at_time))
+            response.success = True
+        except SpecError as err:
+            response.success = False
+            response.error = str(err)
+        return response
+
+    # -- outputs --------------------------------------------------------------------------------
+    def publish_state(self, state: SimState) -> None:
+        stamp = to_time(state.stamp_ns)
+        if self.pub_clock is not None:
+            self.pub_clock.publish(Clock(clock=stamp))
+        js = JointState()
+        js.header.stamp = stamp
+        js.name = list(state.joint_names)
+        js.position = array.array("d", state.q.tobytes())
+        js.velocity = array.array("d", state.v.tobytes())
+        js.effort = array.array("d", state.tau.tobytes())
+        self.pub_joints.publish(js)
+        frames = {s: self.backend.link_name(j) for s, j in self.backend.ft_joints.items()}
+        for sensor, wrench in state.ft.items():
+            msg = WrenchStamped()
+            msg.header.stamp = stamp
+            msg.header.frame_id = frames[sensor]
+            f, t = wrench.force, wrench.torque
+            msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = float(f[0]), float(f[1]), float(f[2])
+            msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = float(t[0]), float(t[1]), float(t[2])
+            self.pub_ft[sensor].publish(msg)
+        imu = Imu()
+        imu.header.stamp = stamp
+        imu.header.frame_id = state.imu.frame
+        qx, qy, qz, qw = (float(v) for v in state.imu.quaternion_xyzw)
+        imu.orientation.x, imu.orientation.y, imu.orientation.z, imu.orientation.w = qx, qy, qz, qw
+        w, a = state.imu.angular_velocity, state.imu.linear_acceleration
+        imu.angular_velocity.x, imu.angular_velocity.y, imu.angular_velocity.z = float(w[0]), float(w[1]), float(w[2])
+        imu.linear_acceleration.x, imu.linear_acceleration.y, imu.linear_acceleration.z = \
+            float(a[0]), float(a[1]), float(a[2])
+        s = self.params.sensors
+        imu.angular_velocity_covariance[0::4] = [s.imu_gyro_noise_std ** 2] * 3
+        imu.linear_acceleration_covariance[0::4] = [s.imu_accel_noise_std ** 2] * 3
+        self.pub_imu.publish(imu)
+        odom = Odometry()
+        odom.header.stamp = stamp
+        odom.header.frame_id = "world"
+        odom.child_frame_id = state.base.frame
+        pos = state.base.q
+        odom.pose.pose.position.x, odom.pose.pose.position.y, odom.pose.pose.position.z = \
+            float(pos[0]), float(pos[1]), float(pos[2])
+        o = odom.pose.pose.orientation
+        o.x, o.y, o.z, o.w = (float(v) for v in pos[3:7])
+        v = state.base.v
+        tw = odom.twist.twist
+        tw.linear.x, tw.linear.y, tw.linear.z = float(v[0]), float(v[1]), float(v[2])
+        tw.angular.x, tw.angular.y, tw.angular.z = float(v[3]), float(v[4]), float(v[5])
+        self.pub_truth.publish(odom)
+
+    def _publish_diagnostics(self, diagnostics: list[Diagnostic]) -> None:
+        if not diagnostics:
+            return
+        msg = DiagnosticArray()
+        msg.header.stamp = to_time(self.bridge.stamp_ns)
+        for d in diagnostics:
+            msg.status.append(DiagnosticStatus(
+                level=bytes([d.level]), name=d.name, message=d.message, hardware_id="sim_bridge",
+                values=[KeyValue(key=k, value=v) for k, v in d.values.items()]))
+        self.pub_diag.publish(msg)
+
+    def flush_diagnostics(self) -> None:
+        self._publish_diagnostics(self.bridge.drain_diagnostics())
+
+    # -- loops ----------------------------------------------------------------------------------
+    def _done(self) -> bool:
+        return self.params.max_ticks > 0 and self.bridge.ticks >= self.params.max_ticks
+
+    def wait_for_controller(self, executor: SingleThreadedExecutor) -> bool:
+        """Lock-step start: wait until a controller is connected (VOLATILE topics drop what is
+        published before the match), at most lockstep.startup_wait_s of wall time."""
+        deadline = time.monotonic() + self.params.lockstep.startup_wait_s
+        while rclpy.ok() and time.monotonic() < deadline:
+            if self.count_publishers("joint_command") > 0 and self.pub_joints.get_subscription_count() > 0:
+                executor.spin_once(timeout_sec=0.2)  # let the matching settle on both sides
+                return True
+            executor.spin_once(timeout_sec=0.05)
+        self.get_logger().warning("no controller connected yet: starting the lock-step anyway")
+        return False
+
+    def run_lockstep(self, executor: SingleThreadedExecutor) -> None:
+        self.wait_for_controller(executor)
+        while rclpy.ok() and not self._done():
+            self._restart = False
+            self.publish_state(self.bridge.state)
+            self.flush_diagnostics()
+            deadline = time.monotonic() + self.bridge.wait_budget()
+            while not self.bridge.command_ready() and not self._restart:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0:
+                    break
+                executor.spin_once(timeout_sec=min(remaining, 0.1))
+            if self._restart:
+                continue  # reset while waiting: publish the new t = 0 state
+            self.bridge.step_lockstep()
+        self.publish_state(self.bridge.state)
+        self.flush_diagnostics()
+
+    def drain(self, executor: SingleThreadedExecutor, limit: int = 100) -> None:
+        """Run every callback that is ready now, without waiting."""
+        for _ in range(limit):
+            before = self.callbacks
+            executor.spin_once(timeout_sec=0.0)
+            if self.callbacks == before:
+                return
+
+    def run_realtime(self, executor: SingleThreadedExecutor) -> None:
+        period = self.params.physics.control_period_s
+        next_tick = time.monotonic()
+        while rclpy.ok() and not self._done():
+            now = time.monotonic()
+            if now < next_tick:
+                executor.spin_once(timeout_sec=next_tick - now)
+                continue
+            self.drain(executor)  # even when running late, read what arrived
+            if self._restart:
+                self._restart = False
+                next_tick = time.monotonic()
+                self.publish_state(self.bridge.state)
+                continue
+            self.bridge.step_realtime(time.monotonic())
+            self.publish_state(self.bridge.state)
+            self.flush_diagnostics()
+            next_tick += period
+            if time.monotonic() - next_tick > 10 * period:  # fell far behind: do not try to catch up
+                next_tick = time.monotonic()
+
+
+def main(args: list[str] | None = None) -> int:
+    apply_local_dds_env()
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = SimBridgeNode()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        if node.params.execution == "lockstep":
+            node.run_lockstep(executor)
+        else:
+            node.run_realtime(executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ClimbError, ValueError) as err:
+        print(f"sim_bridge: {err}", file=sys.stderr)
+        code = 2
+    finally:
+        if node is not None:
+            node.backend.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

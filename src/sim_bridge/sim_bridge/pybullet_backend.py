@@ -1,0 +1,626 @@
+"""PyBullet backend: the robot, the ladder and the ground in one private PyBullet client.
+
+One client per instance (``p.connect(p.DIRECT)``, GUI on request); every call passes
+``physicsClientId``. The robot is the core loader's simulation URDF (absolute meshes, tiny
+inertials, foot boxes, armature, fingers kept), loaded with its URDF inertias; the environment is
+``climb_core.environment.Environment.add_to_pybullet``. Physics runs at ``physics.dt_s`` (1 kHz),
+``step()`` advances one control period (default 5 ms = 5 physics steps) and the actuator models
+(actuation.py) compute fresh torques before every physics step. Modelling assumptions are in
+docs/sim_bridge.md.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from climb_core.contact import HANDS, LIMBS
+from climb_core.errors import SpecError
+
+from . import frames
+from .actuation import ActuatorBank
+from .backend import Backend, BallState, BaseTruth, ImuReading, ResetRequest, SimState, Wrench
+from .commands import GRIPPER_CLOSE, GRIPPER_OPEN, POSITION, ActuatorCommand, GripperRequest, PerturbRequest
+from .grasp import GraspManager
+from .motor import MotorParams
+from .params import BridgeParams, load_bridge_params
+from .world import initial_configuration, resolve_scenario
+
+
+def _import_pybullet():
+    try:
+        import pybullet
+    except ImportError as exc:  # pragma: no cover - pybullet is a project dependency
+        raise ImportError("the PyBullet backend needs pybullet: pip install pybullet") from exc
+    return pybullet
+
+
+@dataclass
+class _Ball:
+    body: int
+    mass: float  # [kg]
+    launch_time: float  # [s]
+    launch_velocity: np.ndarray  # (3,) [m/s]
+    impulse_on_robot: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [N s]
+    touching: bool = False
+
+
+class PyBulletBackend(Backend):
+    """Backend on PyBullet. ``reset()`` builds the world; ``close()`` disconnects the client."""
+
+    def __init__(self, params: BridgeParams | None = None):
+        super().__init__()
+        self.p = _import_pybullet()
+        self.params = params or load_bridge_params()
+        self.control_period_ns = self.params.physics.control_period_ns
+        self.client: int | None = None
+        self.robot = None  # climb_core.robot.RobotModel
+        self.env = None  # climb_core.environment.Environment
+        self.scenario = None
+        self.robot_name = ""
+        self.ladder_source: Any = None
+        self.body = -1
+        self.env_bodies: dict[str, int] = {}
+        self.ground_body = -1
+        self.balls: list[_Ball] = []
+        self.rng = np.random.default_rng(self.params.seed)
+        self.fell = False
+        self.fall_reason = ""
+        self.grip_strength = 0.0  # [N] current grip strength of both hands (robot config at reset)
+        self._imu_velocity_prev = np.zeros(3)
+        self._imu_acc = np.zeros(3)
+        self.physics_time_s = 0.0  # [s] wall time of the last tick's stepSimulation calls
+        self._kinematics = None  # base kinematics of the current physics state
+
+    # ============================================================================ world building
+    def _connect(self) -> None:
+        p = self.p
+        if self.client is None:
+            self.client = p.connect(p.GUI if self.params.gui else p.DIRECT)
+            if self.client < 0:
+                raise RuntimeError("PyBullet could not connect (GUI needs a display)")
+        else:
+            p.resetSimulation(physicsClientId=self.client)
+        ph = self.params.physics
+        p.setGravity(0.0, 0.0, -ph.gravity, physicsClientId=self.client)
+        p.setPhysicsEngineParameter(fixedTimeStep=ph.dt_s, numSolverIterations=ph.solver_iterations,
+                                    numSubSteps=0, deterministicOverlappingPairs=1, physicsClientId=self.client)
+
+    def reset(self, request: ResetRequest | None = None) -> SimState:
+        """Build the world (robot, environment, ground) and put the robot in its initial posture."""
+        from climb_core.robot import load_robot
+
+        request = request or ResetRequest()
+        p = self.p
+        self._clear_requests()
+        self.stamp_ns = 0
+        robot_name = request.robot or self.robot_name or self.params.robot
+        ladder_source = self.ladder_source if request.ladder is None else request.ladder
+        if ladder_source is None:
+            ladder_source = self.params.ladder
+        self.robot = load_robot(robot_name)
+        self.robot_name = robot_name
+        self.ladder_source = ladder_source
+        self.scenario, self.env = resolve_scenario(ladder_source, self.params.apply_perturbation)
+        seed = self.params.seed if request.seed is None else int(request.seed)
+        self.rng = np.random.default_rng(seed)
+        self._connect()
+        cid = self.client
+        self.env_bodies = self.env.add_to_pybullet(cid)
+        self.ground_body = self.env_bodies.get("ground", -1)
+        self._load_robot()
+        q0, hands_to_latch = initial_configuration(self.robot, self.env, request.q,
+                                                   request.initial_posture or self.params.initial_posture)
+        self._set_configuration(q0)
+        self.actuators.reset()
+        self.balls = []
+        self.fell, self.fall_reason = False, ""
+        self.grip_strength = float(self.robot.config.grip_strength)
+        self.grasps = GraspManager(self, self.params.grasp)
+        for hand in hands_to_latch:
+            self.grasps.close(hand, 1.0)
+        for drop in (self.scenario.perturbation.drops if self.params.apply_perturbation else ()):
+            self.request_perturbation(PerturbRequest("drop", mass=drop.mass, radius=drop.radius, speed=drop.speed,
+                                                     target_link=drop.target_link, at_time=drop.at_time))
+        self._imu_velocity_prev = self._base_kinematics()[2]
+        self._imu_acc = np.zeros(3)
+        return self.observe()
+
+    def _load_robot(self) -> None:
+        p, cid = self.p, self.client
+        robot = self.robot
+        cfg = robot.config
+        flags = p.URDF_USE_INERTIA_FROM_FILE
+        if not self.params.gui:
+            flags |= p.URDF_IGNORE_VISUAL_SHAPES
+        if self.params.physics.self_collision:
+            flags |= p.URDF_USE_SELF_COLLISION | p.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT
+        q_ref = robot.q_reference()
+        self.body = p.loadURDF(str(robot.sim_urdf_path()), basePosition=q_ref[:3].tolist(), flags=flags,
+                               physicsClientId=cid)
+        body = self.body
+        n = p.getNumJoints(body, physicsClientId=cid)
+        self.joint_index: dict[str, int] = {}
+        self.link_index: dict[str, int] = {p.getBodyInfo(body, physicsClientId=cid)[0].decode(): -1}
+        self.parent_of: dict[int, int] = {}
+        self.joint_info: dict[str, tuple] = {}
+        for j in range(n):
+            info = p.getJointInfo(body, j, physicsClientId=cid)
+            name = info[1].decode()
+            self.joint_index[name] = j
+            self.link_index[info[12].decode()] = j
+            self.parent_of[j] = info[16]
+            self.joint_info[name] = info
+        self.root_link = next(name for name, idx in self.link_index.items() if idx == -1)
+        missing = [name for name in robot.joint_names if name not in self.joint_index]
+        if missing:
+            raise SpecError("robot", f"simulation URDF lacks whole-body joints {missing}")
+        self.joint_names = tuple(robot.joint_names)
+        self._act = [self.joint_index[name] for name in self.joint_names]
+        self.finger_names = tuple(name for name in cfg.locked_joints
+                                  if name in self.joint_index and self.joint_info[name][2] != p.JOINT_FIXED)
+        self._fingers = [self.joint_index[name] for name in self.finger_names]
+        # default velocity motors brake every joint: off (torque control from now on)
+        movable = self._act + self._fingers
+        p.setJointMotorControlArray(body, movable, p.VELOCITY_CONTROL, forces=[0.0] * len(movable),
+                                    physicsClientId=cid)
+        # inertial frames (PyBullet reports the base and the sensors in them)
+        self.T_link_inertial: dict[int, np.ndarray] = {}
+        for link in [-1] + list(range(n)):
+            info = p.getDynamicsInfo(body, link, physicsClientId=cid)
+            self.T_link_inertial[link] = frames.pose_matrix(info[3], info[4])
+        # friction: PyBullet multiplies both bodies' coefficients (environment.pybullet_friction)
+        mu_robot = self.env.robot_lateral_friction
+        for link in [-1] + list(range(n)):
+            p.changeDynamics(body, link, lateralFriction=mu_robot, restitution=0.0, rollingFriction=0.0,
+                             spinningFriction=0.0, physicsClientId=cid)
+        # F/T sensors on the configured joints: wrench reported in the child link frame
+        self.ft_joints: dict[str, int] = {}
+        for sensor, joint in cfg.ft_sensors.items():
+            if joint not in self.joint_index:
+                raise SpecError(f"ft_sensors.{sensor}", f"joint {joint!r} not in the simulation URDF")
+            j = self.joint_index[joint]
+            p.enableJointForceTorqueSensor(body, j, True, physicsClientId=cid)
+            self.ft_joints[sensor] = j
+        self._ft_order = list(self.ft_joints)
+        self._read = self._act + self._fingers + [self.ft_joints[s] for s in self._ft_order]
+        # limbs: the link of each contact surface and every link below the limb's last joint
+        self.limb_link: dict[str, int] = {}
+        self.limb_links: dict[str, set[int]] = {}
+        self.T_link_surface: dict[str, np.ndarray] = {}
+        for name, limb in cfg.limbs.items():
+            frame = limb.surface.frame
+            if frame not in self.link_index:
+                raise SpecError(f"limbs.{name}.frame", f"{frame!r} is not a link of the simulation URDF")
+            self.limb_link[name] = self.link_index[frame]
+            self.T_link_surface[name] = np.asarray(limb.surface.T_frame_surface, dtype=float)
+            end_joint = self.joint_index[limb.joints[-1]]
+            self.limb_links[name] = self._subtree(end_joint)
+        self.link_limb = {link: limb for limb, links in self.limb_links.items() for link in links}
+        # fingers of each hand and their closed positions (the limit farthest from 0)
+        self.hand_fingers: dict[str, list[int]] = {}
+        self.finger_closed = np.zeros(len(self._fingers))
+        lower = np.array([self.joint_info[nm][8] for nm in self.finger_names])
+        upper = np.array([self.joint_info[nm][9] for nm in self.finger_names])
+        self.finger_effort = np.array([self.joint_info[nm][10] for nm in self.finger_names])
+        self.finger_open = np.clip(0.0, lower, upper)
+        for k, (lo, hi) in enumerate(zip(lower, upper)):
+            self.finger_closed[k] = hi if abs(hi) > abs(lo) + 1e-9 else lo if abs(lo) > abs(hi) + 1e-9 else 0.0
+        for hand in HANDS:
+            links = self.limb_links.get(hand, set())
+            self.hand_fingers[hand] = [k for k, j in enumerate(self._fingers) if j in links]
+        self.finger_target = np.zeros(len(self._fingers))  # [-] 0 open .. 1 closed per finger joint
+        # actuators
+        motor = cfg.motor
+        specs = [motor.for_joint(name) for name in self.joint_names]
+        mp = MotorParams(**{f: np.array([getattr(s, f) for s in specs]) for f in
+                            ("supply_voltage", "resistance", "torque_constant", "gear_ratio", "current_limit",
+                             "trip_hold_off_s")})
+        self.actuators = ActuatorBank(self.joint_names, robot.effort_limits(), mp, self.params.actuation,
+                                      implicit_position=True)
+        self._position_mask = np.zeros(len(self._act), dtype=bool)
+        self._torque_sel = np.arange(len(self._act))
+        self._torque_idx = list(self._act)
+        self._filter_self_collisions(q_ref)
+
+    def _subtree(self, joint: int) -> set[int]:
+        out = {joint}
+        changed = True
+        while changed:
+            changed = False
+            for child, parent in self.parent_of.items():
+                if parent in out and child not in out:
+                    out.add(child)
+                    changed = True
+        return out
+
+    def _filter_self_collisions(self, q_ref: np.ndarray) -> None:
+        """Disable self-collision between links touching (or closer than the margin) at the
+        reference posture (FIELD_NOTES: siblings touching at rest are checked even with
+        EXCLUDE_ALL_PARENTS), between the links of one hand (fingers and palm: the grasp is a
+        constraint, their mutual contacts only cost time), and the config's ignore pairs."""
+        p, cid, body = self.p, self.client, self.body
+        self._set_configuration(q_ref)
+        n = p.getNumJoints(body, physicsClientId=cid)
+        links = [-1] + list(range(n))
+        has_shape = {link: bool(p.getCollisionShapeData(body, link, physicsClientId=cid)) for link in links}
+        margin = self.params.physics.self_collision_margin
+        self.filtered_pairs: list[tuple[str, str]] = []
+        names = {idx: name for name, idx in self.link_index.items()}
+        ignore = {frozenset(pair) for pair in self.robot.config.collision.ignore_pairs}
+        hands = [self.limb_links[h] for h in HANDS if h in self.limb_links]
+        for a_i, a in enumerate(links):
+            for b in links[a_i + 1:]:
+                if not (has_shape[a] and has_shape[b]):
+                    continue
+                pair = frozenset((names[a], names[b]))
+                same_hand = any(a in hand and b in hand for hand in hands)  # a gripper's own parts
+                touching = same_hand or bool(p.getClosestPoints(body, body, margin, linkIndexA=a, linkIndexB=b,
+                                                                physicsClientId=cid))
+                if touching or pair in ignore:
+                    p.setCollisionFilterPair(body, body, a, b, 0, physicsClientId=cid)
+                    self.filtered_pairs.append((names[a], names[b]))
+
+    def _set_configuration(self, q: np.ndarray, v: np.ndarray | None = None) -> None:
+        """Teleport the robot to Pinocchio configuration q (and velocity v, default 0)."""
+        p, cid, body = self.p, self.client, self.body
+        self._kinematics = None
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.robot.nq,):
+            raise SpecError("q", f"must have nq = {self.robot.nq} entries, got {q.shape}")
+        T_world_base = frames.pose_matrix(q[:3], q[3:7])
+        T_world_inertial = T_world_base @ self.T_link_inertial[-1]
+        p.resetBasePositionAndOrientation(body, T_world_inertial[:3, 3].tolist(),
+                                          frames.matrix_to_quat(T_world_inertial[:3, :3]).tolist(),
+                                          physicsClientId=cid)
+        v = np.zeros(self.robot.nv) if v is None else np.asarray(v, dtype=float)
+        lin, ang = frames.world_velocity_from_free_flyer(T_world_base, v[:6], T_world_inertial[:3, 3])
+        p.resetBaseVelocity(body, lin.tolist(), ang.tolist(), physicsClientId=cid)
+        for k, j in enumerate(self._act):
+            p.resetJointState(body, j, float(q[7 + k]), float(v[6 + k]), physicsClientId=cid)
+        for k, j in enumerate(self._fingers):
+            p.resetJointState(body, j, float(self.finger_open[k]), 0.0, physicsClientId=cid)
+
+    def set_state(self, q: np.ndarray, v: np.ndarray | None = None) -> None:
+        """Teleport the robot to Pinocchio (q, v) (tests, tools); fingers open, time unchanged."""
+        self._set_configuration(q, v)
+        self._imu_velocity_prev = self._base_kinematics()[2]
+        self._imu_acc = np.array([0.0, 0.0, -self.params.physics.gravity])
+
+    # ============================================================================ stepping
+    def _apply(self, cmd: ActuatorCommand) -> None:
+        self.actuators.set_command(cmd)
+
+    def _configure_motors(self) -> None:
+        """Once per tick: PyBullet position motors for POSITION joints and the fingers; every other
+        joint has its velocity motor off and receives torques each physics step."""
+        p, cid, body = self.p, self.client, self.body
+        cmd = self.actuators.command
+        position = cmd.modes == POSITION
+        leaving = self._position_mask & ~position
+        if leaving.any():
+            idx = [self._act[j] for j in np.flatnonzero(leaving)]
+            p.setJointMotorControlArray(body, idx, p.VELOCITY_CONTROL, forces=[0.0] * len(idx), physicsClientId=cid)
+        if position.any():
+            sel = np.flatnonzero(position)
+            a = self.params.actuation
+            p.setJointMotorControlArray(
+                body, [self._act[j] for j in sel], p.POSITION_CONTROL, targetPositions=cmd.values[sel].tolist(),
+                targetVelocities=[0.0] * len(sel), forces=self.actuators.position_force_limits()[sel].tolist(),
+                positionGains=[a.position_gain] * len(sel), velocityGains=[a.velocity_gain] * len(sel),
+                physicsClientId=cid)
+        self._position_mask = position
+        self._torque_sel = np.flatnonzero(~position)
+        self._torque_idx = [self._act[j] for j in self._torque_sel]
+        if self._fingers:
+            goal = self.finger_open + self.finger_target * (self.finger_closed - self.finger_open)
+            n = len(self._fingers)
+            p.setJointMotorControlArray(
+                body, self._fingers, p.POSITION_CONTROL, targetPositions=goal.tolist(), targetVelocities=[0.0] * n,
+                forces=self.finger_effort.tolist(), positionGains=[self.params.actuation.finger_position_gain] * n,
+                velocityGains=[1.0] * n, physicsClientId=cid)
+
+    def _advance(self) -> None:
+        p, cid, body = self.p, self.client, self.body
+        ph = self.params.physics
+        dt = ph.dt_s
+        n_act = len(self._act)
+        self._configure_motors()
+        physics = 0.0
+        for k in range(ph.substeps):
+            t = self.time + k * dt
+            states = p.getJointStates(body, self._act, physicsClientId=cid)
+            q = np.fromiter((s[0] for s in states), float, n_act)
+            v = np.fromiter((s[1] for s in states), float, n_act)
+            tau, trips = self.actuators.torques(q, v, t, dt)
+            for trip in trips:
+                name = self.joint_names[trip.joint]
+                self._emit("overcurrent", f"{name}: over-current {trip.current:.1f} A > "
+                           f"{self.actuators.motor_params.current_limit[trip.joint]:.1f} A, power cut until "
+                           f"t = {trip.until:.3f} s", 2, joint=name, current_A=f"{trip.current:.2f}",
+                           until_s=f"{trip.until:.3f}")
+            if self._torque_idx:
+                p.setJointMotorControlArray(body, self._torque_idx, p.TORQUE_CONTROL,
+                                            forces=tau[self._torque_sel].tolist(), physicsClientId=cid)
+            if k == ph.substeps - 1:
+                self._imu_velocity_prev = self._base_kinematics()[2]
+            t0 = time.perf_counter()
+            p.stepSimulation(physicsClientId=cid)
+            physics += time.perf_counter() - t0
+            self._kinematics = None
+            if self.balls:
+                self._track_balls(dt)
+        self.physics_time_s = physics
+        self._imu_acc = (self._base_kinematics()[2] - self._imu_velocity_prev) / dt
+        self.grasps.update()
+        self._check_fall()
+
+    # ============================================================================ sensing
+    def _base_kinematics(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(T_world_base, position_com_in_world, linear velocity of the base origin in world,
+        angular velocity in world), cached until the next physics step or teleport."""
+        if self._kinematics is None:
+            self._kinematics = self._read_base_kinematics()
+        return self._kinematics
+
+    def _read_base_kinematics(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        p, cid, body = self.p, self.client, self.body
+        pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
+        lin, ang = p.getBaseVelocity(body, physicsClientId=cid)
+        T_world_inertial = frames.pose_matrix(pos, orn)
+        T_world_base = frames.base_pose_from_inertial(T_world_inertial, self.T_link_inertial[-1])
+        com = np.asarray(pos)
+        ang = np.asarray(ang)
+        v_origin = frames.base_twist_from_com(T_world_base, com, np.asarray(lin), ang)
+        return T_world_base, com, v_origin, ang
+
+    def link_pose(self, link: int) -> np.ndarray:
+        """T_world_link (URDF link frame) of a PyBullet link index (-1 = root)."""
+        if link == -1:
+            return self._base_kinematics()[0]
+        state = self.p.getLinkState(self.body, link, computeForwardKinematics=1, physicsClientId=self.client)
+        return frames.pose_matrix(state[4], state[5])
+
+    def link_name(self, link: int) -> str:
+        """URDF link name of a PyBullet link index (-1 = root)."""
+        return next(name for name, idx in self.link_index.items() if idx == link)
+
+    def surface_pose(self, limb: str) -> np.ndarray:
+        """T_world_surface of a limb's contact surface (sole centre / grasp centre)."""
+        return self.link_pose(self.limb_link[limb]) @ self.T_link_surface[limb]
+
+    def observe(self) -> SimState:
+        p, cid, body = self.p, self.client, self.body
+        s = self.params.sensors
+        n_act, n_f = len(self._act), len(self._fingers)
+        states = p.getJointStates(body, self._read, physicsClientId=cid)
+        q = np.array([st[0] for st in states[:n_act]])
+        v = np.array([st[1] for st in states[:n_act]])
+        T_world_base, com, v_origin, omega = self._base_kinematics()
+        q_pin = np.concatenate([T_world_base[:3, 3], frames.matrix_to_quat(T_world_base[:3, :3]), q])
+        v_pin = np.concatenate([frames.free_flyer_velocity(T_world_base, v_origin, omega), v])
+        ft = {}
+        for k, sensor in enumerate(self._ft_order):
+            reaction = np.asarray(states[n_act + n_f + k][2])
+            j = self.ft_joints[sensor]
+            force, torque = frames.wrench_child_inertial_to_link(reaction[:3], reaction[3:], self.T_link_inertial[j])
+            force, torque = -force, -torque  # parent-on-child -> distal side on the proximal side
+            if s.ft_force_noise_std:
+                force = force + self.rng.normal(0.0, s.ft_force_noise_std, 3)
+            if s.ft_torque_noise_std:
+                torque = torque + self.rng.normal(0.0, s.ft_torque_noise_std, 3)
+            ft[sensor] = Wrench(force, torque)
+        R = T_world_base[:3, :3]
+        g = np.array([0.0, 0.0, -self.params.physics.gravity])
+        gyro = R.T @ omega
+        accel = R.T @ (self._imu_acc - g)
+        if s.imu_gyro_noise_std:
+            gyro = gyro + self.rng.normal(0.0, s.imu_gyro_noise_std, 3)
+        if s.imu_accel_noise_std:
+            accel = accel + self.rng.normal(0.0, s.imu_accel_noise_std, 3)
+        q_meas, v_meas = q, v
+        if s.joint_position_noise_std:
+            q_meas = q + self.rng.normal(0.0, s.joint_position_noise_std, n_act)
+        if s.joint_velocity_noise_std:
+            v_meas = v + self.rng.normal(0.0, s.joint_velocity_noise_std, n_act)
+        tau = self.actuators.tau.copy()
+        if self._position_mask.any():
+            sel = np.flatnonzero(self._position_mask)
+            tau[sel] = [states[j][3] for j in sel]
+        tripped = self.actuators.tripped(self.time)
+        fingers = {hand: float(np.mean(self.finger_target[idx])) if idx else 0.0
+                   for hand, idx in self.hand_fingers.items()}
+        return SimState(
+            stamp_ns=self.stamp_ns, joint_names=self.joint_names, q=q_meas, v=v_meas,
+            tau=tau, motor_current=self.actuators.motors.current.copy(),
+            tripped=tuple(nm for nm, t in zip(self.joint_names, tripped) if t), ft=ft,
+            imu=ImuReading(self.root_link, frames.matrix_to_quat(R), gyro, accel),
+            base=BaseTruth(self.root_link, T_world_base, v_origin, omega, q_pin, v_pin),
+            contact_forces=self.contact_forces(), grasps=self.grasps.latched_surfaces(),
+            finger_positions=fingers, fell=self.fell, fall_reason=self.fall_reason,
+            balls=[self._ball_state(b) for b in self.balls])
+
+    def contact_forces(self) -> dict[str, np.ndarray]:
+        """limb -> (3,) [N] total force the environment (ground, ladder) applies on the limb's links,
+        world frame (grasp constraint forces excluded: see grasp_forces())."""
+        out = {limb: np.zeros(3) for limb in LIMBS}
+        env = set(self.env_bodies.values())
+        for c in self.p.getContactPoints(bodyA=self.body, physicsClientId=self.client):
+            if c[2] not in env:
+                continue
+            limb = self.link_limb.get(c[3])
+            if limb is None:
+                continue
+            out[limb] += self._contact_force_on_a(c)
+        return out
+
+    @staticmethod
+    def _contact_force_on_a(c: tuple) -> np.ndarray:
+        """Force on body A of a getContactPoints row (normal along contactNormalOnB, B -> A)."""
+        return (c[9] * np.asarray(c[7]) + c[10] * np.asarray(c[11]) + c[12] * np.asarray(c[13]))
+
+    def ground_reaction(self) -> np.ndarray:
+        """(3,) [N] total force of the ground on the robot, world frame."""
+        total = np.zeros(3)
+        for c in self.p.getContactPoints(bodyA=self.body, bodyB=self.ground_body, physicsClientId=self.client):
+            total += self._contact_force_on_a(c)
+        return total
+
+    # ============================================================================ falls
+    def _check_fall(self) -> None:
+        if self.fell:
+            return
+        T_world_base = self._base_kinematics()[0]
+        threshold = self.params.falls.base_height_fraction * self.robot.config.base_height
+        reason = ""
+        if T_world_base[2, 3] < threshold:
+            reason = f"base height {T_world_base[2, 3]:.3f} m < {threshold:.3f} m"
+        else:
+            allowed = set().union(*(self.limb_links[limb] for limb in LIMBS if limb in self.limb_links))
+            for c in self.p.getContactPoints(bodyA=self.body, bodyB=self.ground_body, physicsClientId=self.client):
+                if c[3] not in allowed and c[9] > self.params.falls.ground_contact_force:
+                    names = {idx: nm for nm, idx in self.link_index.items()}
+                    reason = f"{names[c[3]]} touches the ground ({c[9]:.0f} N)"
+                    break
+        if reason:
+            self.fell, self.fall_reason = True, reason
+            self._emit("fall", f"fall at t = {self.time:.3f} s: {reason}", 2, reason=reason)
+
+    # ============================================================================ requests
+    def _gripper(self, request: GripperRequest) -> None:
+        if request.command == GRIPPER_CLOSE:
+            self.grasps.close(request.hand, 1.0)
+        elif request.command == GRIPPER_OPEN:
+            self.grasps.open(request.hand)
+        else:
+            self.grasps.position(request.hand, request.position)
+
+    def set_finger_target(self, hand: str, closed_fraction: float) -> None:
+        for k in self.hand_fingers.get(hand, []):
+            self.finger_target[k] = closed_fraction
+
+    def set_grip_strength(self, newtons: float) -> None:
+        """Change the grip strength of both hands [N] (applies to latched grasps at once)."""
+        if not newtons > 0 or not math.isfinite(newtons):
+            raise SpecError("grip_strength", f"must be > 0 [N], got {newtons}")
+        self.grip_strength = float(newtons)
+        self.grasps.set_max_force(self.grip_strength)
+
+    def _perturb(self, request: PerturbRequest) -> None:
+        if request.kind == "drop":
+            self._drop(request)
+        elif request.kind == "rung_offset":
+            name = f"rung_{int(request.rung)}"
+            if name not in self.env_bodies:
+                self._emit("perturbation", f"rung_offset ignored: no rung {request.rung} "
+                           f"(the ladder has {self.env.n_rungs})", 2, rung=request.rung)
+                return
+            offset = self.env.T_world_ladder[:3, :3] @ np.array([request.dx, 0.0, request.dz])
+            self._move_surface(name, offset)
+            self._emit("perturbation", f"rung {request.rung} moved by dx = {request.dx:.3f} m, "
+                       f"dz = {request.dz:.3f} m", 1, rung=request.rung, dx=request.dx, dz=request.dz)
+        else:
+            rails = [nm for nm in self.env_bodies if nm.startswith("rail_")]
+            if not rails:
+                self._emit("perturbation", "rails_shift ignored: the ladder has no rails", 2)
+                return
+            offset = self.env.T_world_ladder[:3, :3] @ np.array([0.0, request.dy, 0.0])
+            for name in rails:
+                self._move_surface(name, offset)
+            self._emit("perturbation", f"rails shifted by dy = {request.dy:.3f} m", 1, dy=request.dy)
+
+    def _move_surface(self, name: str, offset_in_world: np.ndarray) -> None:
+        p, cid = self.p, self.client
+        body = self.env_bodies[name]
+        pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
+        p.resetBasePositionAndOrientation(body, (np.asarray(pos) + offset_in_world).tolist(), orn,
+                                          physicsClientId=cid)
+        self.grasps.surface_moved(name, offset_in_world)
+
+    def surface_frame(self, name: str) -> np.ndarray:
+        """Current T_world_surface of an environment surface (after run-time perturbations)."""
+        from climb_core.environment import R_SURFACE_CYLINDER
+
+        surface = self.env.surfaces[name]
+        pos, orn = self.p.getBasePositionAndOrientation(self.env_bodies[name], physicsClientId=self.client)
+        T = frames.pose_matrix(pos, orn)
+        if surface.shape == "cylinder":
+            T[:3, :3] = T[:3, :3] @ R_SURFACE_CYLINDER.T
+        return T
+
+    def resolve_link(self, name: str) -> int:
+        """A link index from a URDF link name, ``<name>_link``, or a limb name."""
+        for candidate in (name, f"{name}_link"):
+            if candidate in self.link_index:
+                return self.link_index[candidate]
+        if name in self.limb_link:
+            return self.limb_link[name]
+        raise SpecError("perturbation.target_link", f"unknown link {name!r} of {self.robot.config.name}")
+
+    def _drop(self, request: PerturbRequest) -> None:
+        p, cid = self.p, self.client
+        try:
+            link = self.resolve_link(request.target_link)
+        except SpecError as err:
+            self._emit("perturbation", f"drop ignored: {err}", 2)
+            return
+        d = self.params.drops
+        direction = np.asarray(d.direction, dtype=float)
+        direction /= np.linalg.norm(direction)
+        if link == -1:
+            target = self._base_kinematics()[1]
+        else:
+            target = np.asarray(p.getLinkState(self.body, link, physicsClientId=cid)[0])
+        # spawn just clear of the first body on the ray toward the target, at the requested speed
+        ray_from = target - direction * d.start_distance_m
+        hit = p.rayTest(ray_from.tolist(), target.tolist(), physicsClientId=cid)[0]
+        surface = np.asarray(hit[3]) if hit[0] >= 0 else target
+        start = surface - direction * (request.radius + d.clearance_m)
+        g_along = float(np.dot([0.0, 0.0, -self.params.physics.gravity], direction))
+        gap = float(np.linalg.norm(surface - start)) - request.radius
+        v0 = math.sqrt(max(request.speed ** 2 - 2.0 * g_along * gap, 0.0))
+        shape = p.createCollisionShape(p.GEOM_SPHERE, radius=request.radius, physicsClientId=cid)
+        visual = -1
+        if self.params.gui:
+            visual = p.createVisualShape(p.GEOM_SPHERE, radius=request.radius, rgbaColor=[0.8, 0.1, 0.1, 1.0],
+                                         physicsClientId=cid)
+        ball = p.createMultiBody(baseMass=request.mass, baseCollisionShapeIndex=shape, baseVisualShapeIndex=visual,
+                                 basePosition=start.tolist(), physicsClientId=cid)
+        p.changeDynamics(ball, -1, restitution=d.restitution, lateralFriction=self.env.robot_lateral_friction,
+                         physicsClientId=cid)
+        p.resetBaseVelocity(ball, (v0 * direction).tolist(), [0.0, 0.0, 0.0], physicsClientId=cid)
+        self.balls.append(_Ball(ball, request.mass, self.time, v0 * direction))
+        self._emit("drop", f"ball of {request.mass:.1f} kg, r = {request.radius:.2f} m thrown at "
+                   f"{request.target_link} at {request.speed:.1f} m/s", 1, mass_kg=request.mass,
+                   speed_mps=request.speed, target=request.target_link, body=ball)
+
+    def _track_balls(self, dt: float) -> None:
+        for ball in self.balls:
+            contacts = self.p.getContactPoints(bodyA=ball.body, bodyB=self.body, physicsClientId=self.client)
+            ball.touching = bool(contacts)
+            for c in contacts:
+                ball.impulse_on_robot -= self._contact_force_on_a(c) * dt  # reaction on the robot
+
+    def _ball_state(self, ball: _Ball) -> BallState:
+        pos, _ = self.p.getBasePositionAndOrientation(ball.body, physicsClientId=self.client)
+        lin, _ = self.p.getBaseVelocity(ball.body, physicsClientId=self.client)
+        return BallState(ball.body, ball.mass, np.asarray(pos), np.asarray(lin), ball.impulse_on_robot.copy(),
+                         ball.touching, ball.launch_time, ball.launch_velocity.copy())
+
+    # ============================================================================ misc
+    def close(self) -> None:
+        if self.client is not None:
+            try:
+                self.p.disconnect(physicsClientId=self.client)
+            except self.p.error:  # pragma: no cover - already gone
+                pass
+            self.client = None
+
+    def __del__(self) -> None:  # pragma: no cover - best effort
+        try:
+            self.close()
+        except Exception:
+            pass

@@ -1,0 +1,199 @@
+"""Bridge protocol logic on the mock backend: command validation, lock-step, watchdog, stamped
+requests (no physics engine, no ROS)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from climb_core.errors import SpecError
+from sim_bridge.bridge import ERROR, SimBridge
+from sim_bridge.commands import (DAMPING, MODES, POSITION, PWM, TORQUE, ActuatorCommand, GripperRequest,
+                                 PerturbRequest, validate_joint_command)
+from sim_bridge.mock_backend import MockBackend
+from sim_bridge.params import load_bridge_params
+
+NAMES = ("hip", "knee", "ankle")
+LIMITS = np.array([80.0, 80.0, 30.0])
+PERIOD_NS = 5_000_000
+
+
+def make(execution: str = "lockstep", **overrides) -> SimBridge:
+    params = load_bridge_params(execution=execution, **overrides)
+    backend = MockBackend(NAMES, LIMITS, params=params)
+    bridge = SimBridge(backend, params)
+    bridge.reset()
+    return bridge
+
+
+def test_mode_codes_match_the_message_constants():
+    from climb_msgs.msg import GripperCommand, JointCommand
+
+    assert MODES == {"torque": JointCommand.TORQUE, "pwm": JointCommand.PWM,
+                     "position": JointCommand.POSITION, "damping": JointCommand.DAMPING}
+    assert (GripperCommand.OPEN, GripperCommand.CLOSE, GripperCommand.POSITION) == (0, 1, 2)
+
+
+@pytest.mark.parametrize("names, modes, values, field, rule", [
+    (["hip"], [TORQUE], [math.nan], "joint_command.values[0]", "finite"),
+    (["hip"], [TORQUE], [math.inf], "joint_command.values[0]", "finite"),
+    (["hip", "knee"], [TORQUE], [1.0, 2.0], "joint_command.modes", "one mode per name"),
+    (["hip"], [TORQUE], [1.0, 2.0], "joint_command.values", "one value per name"),
+    (["hip", "elbow"], [TORQUE, TORQUE], [1.0, 2.0], "joint_command.names[1]", "unknown joint 'elbow'"),
+    (["hip", "hip"], [TORQUE, TORQUE], [1.0, 2.0], "joint_command.names[1]", "named twice"),
+    (["knee"], [7], [1.0], "joint_command.modes[0]", "unknown mode 7"),
+    (["knee"], [PWM], [1.5], "joint_command.values[0]", "PWM duty"),
+])
+def test_bad_commands_name_the_problem(names, modes, values, field, rule):
+    with pytest.raises(SpecError) as info:
+        validate_joint_command(names, modes, values, NAMES)
+    assert info.value.field == field and rule in info.value.rule
+
+
+def test_a_partial_command_damps_the_joints_it_does_not_name():
+    cmd = validate_joint_command(["knee"], ["position"], [0.3], NAMES, stamp_ns=10)
+    assert list(cmd.modes) == [DAMPING, POSITION, DAMPING] and cmd.values[1] == 0.3 and cmd.stamp_ns == 10
+
+
+def test_lockstep_accepts_only_the_command_stamped_for_the_current_tick():
+    bridge = make()
+    assert bridge.stamp_ns == 0 and not bridge.command_ready()
+    verdict = bridge.offer_command(NAMES, [TORQUE] * 3, [1.0, 2.0, 3.0], stamp_ns=PERIOD_NS)  # early
+    assert not verdict.accepted and verdict.reason == "stale" and not bridge.command_ready()
+    assert bridge.offer_command(NAMES, [TORQUE] * 3, [1.0, 2.0, 3.0], stamp_ns=0).accepted
+    assert bridge.command_ready()
+    state = bridge.step_lockstep()
+    assert state.stamp_ns == PERIOD_NS and np.allclose(state.tau, [1.0, 2.0, 3.0])
+    assert not bridge.command_ready()  # the next tick needs its own command
+    stale = bridge.offer_command(NAMES, [TORQUE] * 3, [9.0, 9.0, 9.0], stamp_ns=0)
+    assert not stale.accepted and bridge.stale == 2
+
+
+def test_lost_controller_damps_every_joint_and_is_reported_then_recovers():
+    bridge = make()
+    bridge.backend.v[:] = [1.0, -2.0, 0.5]  # [rad/s] moving joints
+    state = bridge.step_lockstep()  # nothing arrived in time
+    gain = bridge.params.actuation.damping_gain
+    assert bridge.controller_lost
+    assert np.all(np.sign(state.tau) == -np.sign(state.v)) and np.all(np.abs(state.tau) <= gain * 2.0 + 1e-9)
+    diags = bridge.drain_diagnostics()
+    lost = [d for d in diags if d.name == "sim_bridge/controller"]
+    assert lost and lost[0].level == ERROR and "lost" in lost[0].message
+    assert bridge.wait_budget() == bridge.params.lockstep.lost_retry_s
+    bridge.step_lockstep()
+    assert not [d for d in bridge.drain_diagnostics() if d.name == "sim_bridge/controller"]  # reported once
+    assert bridge.offer_command(NAMES, [TORQUE] * 3, [5.0, 5.0, 5.0], stamp_ns=bridge.stamp_ns).accepted
+    state = bridge.step_lockstep()
+    assert not bridge.controller_lost and np.allclose(state.tau, 5.0)
+    assert any("back" in d.message for d in bridge.drain_diagnostics())
+
+
+def test_a_bad_command_is_rejected_and_the_tick_runs_on_the_last_valid_one():
+    bridge = make()
+    bridge.offer_command(NAMES, [TORQUE] * 3, [1.0, 2.0, 3.0], stamp_ns=0)
+    bridge.step_lockstep()
+    bridge.drain_diagnostics()
+    verdict = bridge.offer_command(NAMES, [TORQUE] * 3, [1.0, math.nan, 3.0], stamp_ns=bridge.stamp_ns)
+    assert not verdict.accepted and "values[1]" in verdict.reason
+    assert bridge.command_ready()  # no second wait for this tick
+    state = bridge.step_lockstep()
+    assert np.allclose(state.tau, [1.0, 2.0, 3.0]) and not bridge.controller_lost
+    errors = [d for d in bridge.drain_diagnostics() if d.name == "sim_bridge/command"]
+    assert errors and errors[0].level == ERROR and errors[0].values["field"] == "joint_command.values[1]"
+    assert "knee" in errors[0].message and "last valid command" in errors[0].message
+
+
+def test_a_bad_first_command_falls_back_to_damping():
+    bridge = make()
+    bridge.backend.v[:] = [1.0, 1.0, 1.0]
+    bridge.offer_command(["elbow"], [TORQUE], [1.0], stamp_ns=0)
+    state = bridge.step_lockstep()
+    assert np.all(state.tau < 0.0)  # damped
+    assert "unknown joint 'elbow'" in bridge.drain_diagnostics()[0].message
+
+
+def test_realtime_watchdog_damps_after_50_ms_without_commands_and_resumes():
+    bridge = make("realtime")
+    watchdog = bridge.params.realtime.watchdog_s
+    assert watchdog == pytest.approx(0.05)
+    bridge.offer_command(NAMES, [TORQUE] * 3, [4.0, 4.0, 4.0], stamp_ns=123, wall_time=10.0)  # any stamp
+    state = bridge.step_realtime(wall_time=10.0 + 0.8 * watchdog)
+    assert np.allclose(state.tau, 4.0) and not bridge.watchdog_active
+    bridge.backend.v[:] = [1.0, 1.0, 1.0]
+    state = bridge.step_realtime(wall_time=10.0 + 1.2 * watchdog)
+    assert bridge.watchdog_active and np.all(state.tau < 0.0)
+    diag = [d for d in bridge.drain_diagnostics() if d.name == "sim_bridge/watchdog"]
+    assert diag and diag[0].level == ERROR and "damping" in diag[0].message
+    bridge.offer_command(NAMES, [TORQUE] * 3, [4.0, 4.0, 4.0], stamp_ns=0, wall_time=10.2)
+    state = bridge.step_realtime(wall_time=10.21)
+    assert not bridge.watchdog_active and np.allclose(state.tau, 4.0)
+    assert any(d.message == "commands resumed" for d in bridge.drain_diagnostics())
+
+
+def test_gripper_and_perturbation_requests_take_effect_at_their_stamp():
+    bridge = make()
+    bridge.offer_gripper(GripperRequest("left_hand", "close", stamp_ns=3 * PERIOD_NS))
+    bridge.offer_perturbation(PerturbRequest("rung_offset", rung=2, dz=0.02, at_time=0.02))
+    for k in range(3):
+        bridge.offer_command(NAMES, [DAMPING] * 3, [0.0] * 3, stamp_ns=bridge.stamp_ns)
+        state = bridge.step_lockstep()
+        assert state.grasps["left_hand"] == ""  # ticks 0, 1, 2
+    bridge.offer_command(NAMES, [DAMPING] * 3, [0.0] * 3, stamp_ns=bridge.stamp_ns)
+    state = bridge.step_lockstep()  # tick 3 starts at 15 ms: the close request is due
+    assert state.grasps["left_hand"] == "mock_surface" and not bridge.backend.perturbations
+    bridge.offer_command(NAMES, [DAMPING] * 3, [0.0] * 3, stamp_ns=bridge.stamp_ns)
+    bridge.step_lockstep()  # tick 4 starts at 20 ms
+    assert [p.kind for p in bridge.backend.perturbations] == ["rung_offset"]
+
+
+def test_requests_are_validated():
+    with pytest.raises(SpecError, match="gripper_command.hand"):
+        GripperRequest("left_foot", "close")
+    with pytest.raises(SpecError, match="perturbation.mass"):
+        PerturbRequest("drop", mass=0.0, radius=0.1, speed=5.5, target_link="torso")
+    with pytest.raises(SpecError, match="perturbation.kind"):
+        PerturbRequest("earthquake")
+    assert PerturbRequest(0, mass=10.0, radius=0.1, speed=5.5, target_link="torso").kind == "drop"
+
+
+def test_in_process_commands_are_checked_too():
+    bridge = make()
+    with pytest.raises(SpecError, match="one mode per actuated joint"):
+        bridge.backend.apply_command(ActuatorCommand(np.zeros(2, dtype=np.uint8), np.zeros(2)))
+    verdict = bridge.offer_actuator_command(ActuatorCommand(np.full(3, PWM, dtype=np.uint8), np.array([0, 2.0, 0])))
+    assert not verdict.accepted and "PWM duty" in verdict.reason
+
+
+def test_same_seed_same_noisy_run():
+    def run(seed: int) -> np.ndarray:
+        params = load_bridge_params(seed=seed, **{"sensors.joint_position_noise_std": 0.01})
+        bridge = SimBridge(MockBackend(NAMES, LIMITS, params=params), params)
+        bridge.reset()
+        out = []
+        for k in range(20):
+            bridge.offer_command(NAMES, [TORQUE] * 3, [math.sin(k), 1.0, -1.0], stamp_ns=bridge.stamp_ns)
+            out.append(bridge.step_lockstep().q)
+        return np.array(out)
+
+    assert np.array_equal(run(3), run(3))
+    assert not np.array_equal(run(3), run(4))
+
+
+def test_joint_names_known_only_after_reset_are_accepted():
+    """A backend learns its robot at reset (the PyBullet one does): the bridge must index it then."""
+
+    class LateBackend(MockBackend):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self._names = self.joint_names
+            self.joint_names = ()
+
+        def reset(self, request=None):
+            self.joint_names = self._names
+            return super().reset(request)
+
+    params = load_bridge_params()
+    bridge = SimBridge(LateBackend(NAMES, LIMITS, params=params), params)
+    bridge.reset()
+    assert bridge.offer_command(NAMES, [TORQUE] * 3, [1.0, 1.0, 1.0], stamp_ns=0).accepted
