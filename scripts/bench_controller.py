@@ -1,0 +1,282 @@
+#!/usr/bin/env python3
+"""Benchmark of the whole-body controller: tick time (state in -> command out), QP solve time, a
+generic-solver baseline measured in the same run, and the node's state -> command latency over ROS.
+
+    .venv/bin/python scripts/bench_controller.py                 # everything (~4 min on 2 cores)
+    .venv/bin/python scripts/bench_controller.py --no-ros --ticks 2000
+    .venv/bin/python scripts/bench_controller.py --replay build/qp_failures/qp_failure_X.npz
+
+In-process: the G1 in PyBullet (sim_bridge backend, lock-step) is driven by the controller while
+its input states are recorded (4-contact ladder stance; right-hand transfer rung 5 -> 6); the
+controller is then timed on those states, replayed until --ticks ticks (each pass starts from a
+reset controller, so the FSM and the contact changes replay too). Baseline: the QPs of those ticks
+solved again through qpsolvers (proxqp, and daqp behind qpsolvers' interface). ROS: the
+`sim_bridge` and `controller` executables in lock-step for --ros-ticks ticks with the hand-transfer
+plan; the node reports its own state-received -> command-published latency on diagnostics.
+The paper's controller (multicontact_darpa_tasks.txt): 7.56 ms average, 16.8 ms peak.
+The last line of stdout is one JSON object; keys carry their units.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+PAPER_AVG_MS = 7.56
+PAPER_PEAK_MS = 16.8
+TARGET_COMPUTE_P99_MS = 1.0
+TARGET_NODE_P99_MS = 1.5
+
+
+def stats(values_ms) -> dict[str, float]:
+    a = np.asarray(values_ms, dtype=float)
+    return {"p50": round(float(np.percentile(a, 50)), 4), "p99": round(float(np.percentile(a, 99)), 4),
+            "max": round(float(a.max()), 4), "mean": round(float(a.mean()), 4), "n": int(a.size)}
+
+
+def record(scenario: str, seconds: float):
+    """Closed loop in PyBullet; returns (recorded RobotStates, stance, plan or None)."""
+    from climb_core import fixtures
+    from controller_node.params import load_controller_params
+    from controller_node.runner import InProcessRunner
+    from controller_node.simple_plans import limb_transfer, plan_of
+    from sim_bridge.pybullet_backend import PyBulletBackend
+
+    backend = PyBulletBackend()
+    try:
+        runner = InProcessRunner.start(backend, load_controller_params(), posture="ladder_4_contacts")
+        robot, env = backend.robot, backend.env
+        stance, q = fixtures.get("ladder_4_contacts", robot, env)
+        plan = None
+        if scenario == "transfer":
+            plan = plan_of(robot, env, stance, [limb_transfer(robot, env, stance, q, "right_hand", "rung_6", -0.15)])
+            runner.controller.set_plan(plan)
+        states = []
+        original = runner.robot_state
+
+        def recording_state():
+            s = original()
+            states.append(s)
+            return s
+
+        runner.robot_state = recording_state
+        log = runner.run(seconds, until=(lambda o: o.status.fsm_state == "hold") if plan else None)
+        if log.fell:
+            raise RuntimeError(f"{scenario}: the robot fell while recording ({log.fall_reason})")
+        return states, stance, plan, robot, env
+    finally:
+        backend.close()
+
+
+def time_controller(states, stance, plan, robot, env, ticks: int, sample_every: int = 20):
+    """Replay ``states`` through fresh controllers until ``ticks`` ticks; per-tick wall times."""
+    from controller_node.controller import Controller
+    from controller_node.params import load_controller_params
+
+    params = load_controller_params()
+    tick_ms, cpu_ms, qp_ms, problems, failures = [], [], [], [], 0
+    while len(tick_ms) < ticks:
+        controller = Controller(robot, params, env)
+        controller.reset(states[0], stance)
+        if plan is not None:
+            controller.set_plan(plan)
+        for state in states:
+            c0 = time.thread_time_ns()
+            t0 = time.perf_counter()
+            out = controller.tick(state)
+            tick_ms.append((time.perf_counter() - t0) * 1e3)
+            cpu_ms.append((time.thread_time_ns() - c0) * 1e-6)  # CPU time: excludes preemption
+            qp_ms.append(out.status.qp_solve_time_ms)
+            failures += out.status.qp_status == 1
+            if len(tick_ms) % sample_every == 0 and controller.last_result is not None:
+                problems.append(controller.last_result.problem)
+            if len(tick_ms) >= ticks:
+                break
+    return tick_ms, cpu_ms, qp_ms, problems, failures
+
+
+def baseline(problems) -> dict[str, dict]:
+    from controller_node.qp import DaqpSolver, solve_with_qpsolvers
+
+    out = {}
+    direct = DaqpSolver()
+    for name, solve in (("daqp_direct", lambda p: direct.solve(p)),
+                        ("qpsolvers_daqp", lambda p: solve_with_qpsolvers(p, "daqp")),
+                        ("qpsolvers_proxqp", lambda p: solve_with_qpsolvers(p, "proxqp"))):
+        times = []
+        for problem in problems:
+            t0 = time.perf_counter()
+            solve(problem)
+            times.append((time.perf_counter() - t0) * 1e3)
+        out[name] = stats(times)
+    return out
+
+
+def ros_run(ticks: int) -> dict:
+    """bridge + controller executables in lock-step; this process publishes the plan and reads
+    the controller's diagnostics."""
+    from climb_core.ros_env import apply_local_dds_env, local_dds_env
+
+    env = local_dds_env()
+    apply_local_dds_env()
+    bridge = subprocess.Popen(
+        [sys.executable, "-m", "sim_bridge.node", "--ros-args", "--params-file",
+         str(ROOT / "config" / "nodes" / "sim_bridge.yaml"), "-p", f"max_ticks:={ticks}",
+         "-p", "initial_posture:=ladder_4_contacts", "-p", "execution:=lockstep"],
+        env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    controller = subprocess.Popen(
+        [sys.executable, "-m", "controller_node.node", "--ros-args", "--params-file",
+         str(ROOT / "config" / "nodes" / "controller.yaml"), "-p", "initial_stance:=ladder_4_contacts"],
+        env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    import rclpy
+    from climb_msgs.msg import ControllerState, WholeBodyPlan
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+
+    from climb_core import fixtures
+    from climb_core.environment import build_environment
+    from climb_core.ladder import load_scenario
+    from climb_core.robot import load_robot
+    from controller_node.simple_plans import limb_transfer, plan_of
+    from msgs_py.contact import whole_body_plan_to_msg
+
+    robot = load_robot("g1")
+    world = build_environment(load_scenario("default"))
+    stance, q = fixtures.get("ladder_4_contacts", robot, world)
+    plan = plan_of(robot, world, stance, [limb_transfer(robot, world, stance, q, "right_hand", "rung_6", -0.15)])
+    rec = {"states": 0, "first": None, "last": None, "diag": {}, "answered": 0, "fsm": ""}
+    reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    rclpy.init()
+    node = Node("bench_controller_observer")
+    pub = node.create_publisher(WholeBodyPlan, "whole_body_plan", QoSProfile(depth=1))
+
+    def on_state(msg):
+        rec["states"] += 1
+        now = time.monotonic()
+        rec["first"] = rec["first"] or now
+        rec["last"] = now
+
+    def on_cstate(msg):
+        rec["answered"] += 1
+        rec["fsm"] = msg.fsm_state
+
+    def on_diag(msg):
+        for s in msg.status:
+            if s.name == "controller":
+                rec["diag"] = {kv.key: kv.value for kv in s.values}
+
+    node.create_subscription(JointState, "joint_states", on_state, reliable)
+    node.create_subscription(ControllerState, "controller/state", on_cstate, reliable)
+    node.create_subscription(DiagnosticArray, "diagnostics", on_diag, QoSProfile(depth=50))
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    sent = False
+    deadline = time.monotonic() + 60.0 + ticks * 0.05
+    try:
+        while bridge.poll() is None and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+            if not sent and rec["answered"]:
+                pub.publish(whole_body_plan_to_msg(plan))
+                sent = True
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+        for proc in (bridge, controller):
+            if proc.poll() is None:
+                proc.send_signal(2)
+                try:
+                    proc.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+    wall = (rec["last"] - rec["first"]) if rec["first"] else float("nan")
+    d = {k: float(v) for k, v in rec["diag"].items() if k.endswith("_ms")}
+    return {"ticks": rec["states"], "answered": rec["answered"], "final_fsm_state": rec["fsm"],
+            "state_to_command_ms": {"p50": d.get("latency_p50_ms"), "p99": d.get("latency_p99_ms"),
+                                    "max": d.get("latency_max_ms")},
+            "tick_ms": {"p50": d.get("tick_p50_ms"), "p99": d.get("tick_p99_ms"), "max": d.get("tick_max_ms")},
+            "qp_solve_ms": {"p50": d.get("qp_p50_ms"), "p99": d.get("qp_p99_ms"), "max": d.get("qp_max_ms")},
+            "wall_s": round(wall, 3), "realtime_factor": round(rec["states"] * 0.005 / wall, 3) if wall else None}
+
+
+def replay(path: str) -> dict:
+    from controller_node.qp import DaqpSolver, QpFailure, load_metadata, load_problem, solve_with_qpsolvers
+
+    problem = load_problem(path)
+    result = {"file": path, "metadata": load_metadata(path), "n_variables": problem.n, "n_rows": problem.m,
+              "row_blocks": problem.row_blocks}
+    for name, solve in (("daqp", DaqpSolver().solve), ("qpsolvers_proxqp", lambda p: solve_with_qpsolvers(p, "proxqp"))):
+        try:
+            solution = solve(problem)
+            result[name] = {"status": solution.status, "residuals": problem.residuals(solution.x)}
+        except QpFailure as failure:
+            result[name] = {"status": failure.status, "failed": True}
+    return result
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--ticks", type=int, default=10000, help="in-process ticks per scenario")
+    parser.add_argument("--ros-ticks", type=int, default=10000, help="lock-step ticks through ROS")
+    parser.add_argument("--no-ros", action="store_true", help="skip the ROS run")
+    parser.add_argument("--replay", help="re-solve a saved failing QP (.npz) and report")
+    args = parser.parse_args(argv)
+    if args.replay:
+        print(json.dumps(replay(args.replay), default=str))
+        return 0
+    try:  # FIELD_NOTES: the controller at nice -10 keeps its timing on a busy 2-core machine
+        os.nice(-10)
+        niced = True
+    except OSError:
+        niced = False
+    result = {"robot": "g1", "ladder": "default", "load_average_1min": round(os.getloadavg()[0], 2),
+              "nice_minus_10": niced,
+              "paper_avg_ms": PAPER_AVG_MS, "paper_peak_ms": PAPER_PEAK_MS,
+              "target_compute_p99_ms": TARGET_COMPUTE_P99_MS, "target_node_state_to_command_p99_ms": TARGET_NODE_P99_MS}
+    all_problems = []
+    for scenario, seconds in (("ladder4", 10.0), ("transfer", 8.0)):
+        t0 = time.perf_counter()
+        states, stance, plan, robot, env = record(scenario, seconds)
+        tick_ms, cpu_ms, qp_ms, problems, failures = time_controller(states, stance, plan, robot, env, args.ticks)
+        all_problems += problems
+        result[f"inprocess_{scenario}_tick_ms"] = stats(tick_ms)
+        result[f"inprocess_{scenario}_tick_cpu_ms"] = stats(cpu_ms)
+        result[f"inprocess_{scenario}_qp_solve_ms"] = stats(qp_ms)
+        result[f"inprocess_{scenario}_qp_failures"] = failures
+        print(f"{scenario:9s} recorded {len(states)} states, timed {len(tick_ms)} ticks "
+              f"({time.perf_counter() - t0:.1f} s): tick {stats(tick_ms)}  cpu {stats(cpu_ms)}  qp {stats(qp_ms)}",
+              flush=True)
+    base = baseline(all_problems)
+    result["qp_sample_count"] = len(all_problems)
+    for name, s in base.items():
+        result[f"same_qp_{name}_ms"] = s
+        print(f"same QPs via {name:16s}: {s}", flush=True)
+    if not args.no_ros:
+        ros = ros_run(args.ros_ticks)
+        result["ros_lockstep"] = ros
+        print(f"ROS lock-step: {ros}", flush=True)
+    worst = max(result["inprocess_ladder4_tick_ms"]["p99"], result["inprocess_transfer_tick_ms"]["p99"])
+    result["compute_p99_within_target"] = worst <= TARGET_COMPUTE_P99_MS
+    worst_cpu = max(result["inprocess_ladder4_tick_cpu_ms"]["p99"], result["inprocess_transfer_tick_cpu_ms"]["p99"])
+    result["compute_cpu_p99_within_target"] = worst_cpu <= TARGET_COMPUTE_P99_MS
+    if not args.no_ros and result["ros_lockstep"]["state_to_command_ms"]["p99"] is not None:
+        result["node_p99_within_target"] = result["ros_lockstep"]["state_to_command_ms"]["p99"] <= TARGET_NODE_P99_MS
+    print(f"paper: {PAPER_AVG_MS} ms average, {PAPER_PEAK_MS} ms peak per control iteration")
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

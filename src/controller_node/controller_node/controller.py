@@ -1,0 +1,713 @@
+"""The controller: one ``tick(state) -> ControlOutput`` per control period, ROS-free.
+
+It owns the active contact set, the tasks, the FSM and the whole-body QP:
+
+1. Pinocchio terms for the measured state (:class:`WholeBodyQP.update`);
+2. F/T forces rotated to the world and low-pass filtered (guarded motion);
+3. the FSM runs (it may change task targets, ask for contact ramps / releases / additions and
+   gripper commands);
+4. force ramps advance; the QP is built and solved; torques recovered;
+5. qp mode: torques; compliance mode: PWM duty from eq. (1) with the QP torques as feed-forward.
+
+A QP failure is counted, the problem saved (``qp.failure_dir``, up to ``qp.max_saved_failures``
+files), the FSM goes to ``failure`` (hold tasks at the configuration at failure) and the command
+comes from the fallback chain: the QP with the hold tasks when it solves; else the same problem
+without torque / joint limits and dampers (cones and grips kept), then with its equality rows
+only (dynamics, held contacts; a KKT solve that always has an answer), with the torques
+saturated at the effort limits; else a joint PD scaled by the joint-space inertia plus the last
+good feed-forward. Never NaN, never garbage.
+"""
+from __future__ import annotations
+
+import pathlib
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from climb_core.contact import FEET, HANDS, LIMBS, Hold, Stance, Transition, WholeBodyPlan
+from climb_core.ros_env import project_root
+
+from .compliance import ComplianceLaw, MotorArrays, PwmGainArrays
+from .constraints import ActiveContact, CollisionAvoidance, contact_from_hold
+from .estimator import RobotState
+from .fsm import Fsm, FsmTable, load_fsm_table
+from .params import ControllerParams
+from .qp import QpFailure, save_problem
+from .reference import PathReference
+from .tasks import BaseOrientationTask, ComTask, FrameTask, PostureTask, Task
+from .wholebody import WholeBodyQP, WholeBodyResult
+
+QP_OK, QP_FAILED, QP_NOT_RUN = 0, 1, 2
+
+
+@dataclass
+class GripperRequest:
+    hand: str  # left_hand | right_hand
+    command: str  # open | close | position
+    position: float = 0.0  # [-] 0 open .. 1 closed (position only)
+    time: float = 0.0  # [s] controller time of the request
+
+
+@dataclass
+class TickStatus:
+    time: float  # [s]
+    fsm_state: str
+    mode: str
+    transition_index: int
+    active_contacts: tuple[str, ...]
+    task_names: tuple[str, ...]
+    task_errors: tuple[float, ...]  # [m or rad]
+    qp_status: int  # QP_OK | QP_FAILED | QP_NOT_RUN
+    qp_solve_time_ms: float  # [ms]
+    tick_time_ms: float  # [ms]
+    qp_failures: int
+    fallback: bool  # command from the fallback PD
+    replan_needed: bool
+
+
+@dataclass
+class ControlOutput:
+    time: float  # [s]
+    stamp_ns: int  # [ns] stamp of the state this answers
+    joint_names: tuple[str, ...]
+    mode: str  # torque | pwm
+    values: np.ndarray  # [N m] or duty [-]
+    tau: np.ndarray  # [N m] torque behind the command (QP or fallback)
+    grippers: list[GripperRequest]
+    status: TickStatus
+    contact_wrenches: dict[str, np.ndarray] = field(default_factory=dict)  # limb -> (6,) world [N, N m]
+
+
+@dataclass
+class ControllerEvent:
+    time: float  # [s]
+    kind: str
+    values: dict[str, Any]
+
+
+@dataclass
+class _Ramp:
+    kind: str  # release | engage
+    start: float  # [s]
+    duration: float  # [s]
+    cap0: Any = None  # release: load at the start (N or per-component wrench)
+
+    def fraction(self, t: float) -> float:
+        return 1.0 if self.duration <= 0 else min(max((t - self.start) / self.duration, 0.0), 1.0)
+
+
+def _limb_links(robot, limb_frame: str) -> set[str]:
+    """Links (collision geometry parents) in the subtree of the limb frame's parent joint."""
+    model = robot.model
+    root = model.frames[model.getFrameId(limb_frame)].parentJoint
+    subtree = set(model.subtrees[root])
+    return {model.frames[obj.parentFrame].name for obj in robot.collision_model.geometryObjects
+            if obj.parentJoint in subtree}
+
+
+class Controller:
+    """Whole-body QP + contact FSM + compliance controller for one robot in one environment."""
+
+    def __init__(self, robot, params: ControllerParams, environment=None, fsm_table: FsmTable | None = None):
+        self.robot = robot
+        self.params = params
+        self.environment = environment
+        self.model: pin.Model = robot.model
+        self.joint_names = tuple(robot.joint_names)
+        self.na = self.model.nv - 6
+        self.effort_limits = robot.effort_limits()
+        collision = self._make_collision(robot, environment) if environment is not None else None
+        self.wb = WholeBodyQP(self.model, self.effort_limits, params, collision)
+        self.ref_data = self.model.createData()
+        self.table = fsm_table if fsm_table is not None else load_fsm_table(params.fsm_table)
+        self.fsm = Fsm(self.table)
+        self.limbs = robot.config.limbs
+        self.limb_frame_ids = {name: robot.frame_id(limb.surface.frame) for name, limb in self.limbs.items()}
+        self.limb_surface = {name: np.asarray(limb.surface.T_frame_surface, float) for name, limb in self.limbs.items()}
+        self.limb_links = {name: _limb_links(robot, limb.surface.frame) for name, limb in self.limbs.items()}
+        self._ft_frames = self._find_ft_frames(robot)
+        gains = PwmGainArrays.from_robot_config(robot.config, self.joint_names)
+        scale = params.compliance.gain_scale
+        self.compliance = ComplianceLaw(PwmGainArrays(gains.kp * scale, gains.kd * scale),
+                                        MotorArrays.from_robot_config(robot.config, self.joint_names),
+                                        params.compliance.current_margin)
+        self.limb_joint_v = {name: np.array([robot.joint_index_v(j) for j in limb.joints if j in self.joint_names])
+                             for name, limb in self.limbs.items()}
+        # tasks
+        t = params.tasks
+        nv = self.model.nv
+        self.com_task = ComTask(t.com)
+        self.posture_task = PostureTask(t.posture, nv)
+        self.base_task = BaseOrientationTask(t.base_orientation, nv)
+        self.contact_body_tasks = {
+            name: FrameTask(t.contact_body, self.limb_frame_ids[name], self.limb_surface[name][:3, 3],
+                            name=f"contact_body:{name}") for name in self.limbs}
+        self.active_tasks: list[Task] = [self.com_task, self.posture_task, self.base_task]
+        # contacts (owned here)
+        self.contacts: dict[str, ActiveContact] = {}
+        self.holds: dict[str, Hold] = {}
+        self.ramps: dict[str, _Ramp] = {}
+        self.last_loads: dict[str, np.ndarray] = {}
+        # plan
+        self.plan: WholeBodyPlan | None = None
+        self.plan_pending = False
+        self._finished = False
+        self.transition_index = -1
+        self.transition: Transition | None = None
+        self.moving_limb = ""
+        self.target_surface = ""
+        self.reference: PathReference | None = None
+        self._path_start = 0.0
+        self._blend: dict[str, Any] = {}
+        self._creep_base: pin.SE3 | None = None
+        self._creep_dir = np.zeros(3)
+        self._creep_posture = np.zeros(self.na)
+        self.guard_off: set[tuple[str, str]] = set()
+        self.replan_needed = False
+        # F/T
+        self._ft_filtered: dict[str, np.ndarray] = {}
+        self._ft_tare: dict[str, np.ndarray] = {}
+        self._approach: dict[str, np.ndarray] = {}  # limb -> unit approach direction (world)
+        # outputs / bookkeeping
+        self.grippers_out: list[GripperRequest] = []
+        self.events: list[ControllerEvent] = []
+        self.qp_failures = 0
+        self.saved_failures: list[pathlib.Path] = []
+        self.fallback_active = False
+        self._q_fallback: np.ndarray | None = None
+        self._tau_ff = np.zeros(self.na)
+        self.last_result: WholeBodyResult | None = None
+        self.state: RobotState | None = None
+        self.time = 0.0
+        self.tick_count = 0
+
+    # ------------------------------------------------------------------ construction helpers
+    def _make_collision(self, robot, environment) -> CollisionAvoidance:
+        c = self.params.collision
+        geometries: dict[str, list] = {}
+        for obj in robot.collision_model.geometryObjects:
+            link = robot.model.frames[obj.parentFrame].name
+            geometries.setdefault(link, []).append((obj.geometry, obj.parentJoint, obj.placement))
+        roles = set(c.env_roles)
+        objects = [(name, geom, tf) for name, geom, tf in environment.collision_objects()
+                   if environment.surfaces[name].role in roles]
+        return CollisionAvoidance(geometries, c.env_links, objects, c.self_pair_tuples, c.influence_distance,
+                                  c.security_distance, c.damping, c.broadphase_margin, c.max_braking)
+
+    def _find_ft_frames(self, robot) -> dict[str, int]:
+        """sensor -> frame id of the sensor joint's child link (the frame of the wrench)."""
+        model = robot.model
+        out = {}
+        for sensor, joint in robot.config.ft_sensors.items():
+            jid = model.getJointId(joint)
+            for fid, frame in enumerate(model.frames):
+                if frame.parentJoint == jid and frame.type == pin.FrameType.BODY:
+                    out[sensor] = fid
+                    break
+        return out
+
+    # ------------------------------------------------------------------ public API
+    def reset(self, state: RobotState, stance: Stance | None = None) -> None:
+        """Start from ``state`` with the holds of ``stance`` active (feet only when None)."""
+        self.state = state
+        self.time = state.time
+        self.wb.update(state.q, state.v)
+        self.contacts.clear()
+        self.holds.clear()
+        self.ramps.clear()
+        if stance is not None:
+            for hold in stance.holds:
+                self._activate(hold.limb, hold, engage=False)
+        self.fsm = Fsm(self.table)
+        self.plan = None
+        self.plan_pending = False
+        self.transition = None
+        self.transition_index = -1
+        self.moving_limb = ""
+        self.replan_needed = False
+        self.fallback_active = False
+        self.guard_off.clear()
+        self._update_ft(state)
+        self.fsm.begin(self)
+
+    def set_plan(self, plan: WholeBodyPlan) -> None:
+        self.plan = plan
+        self.plan_pending = True
+        self.transition_index = -1
+        self.transition = None
+        self.replan_needed = False  # idle / hold / replan_needed raise `plan` on their next run
+
+    def reset_failure(self) -> bool:
+        """Leave the failure state (external `reset` event)."""
+        self.fallback_active = False
+        return self.fsm.fire(self, "reset")
+
+    # ------------------------------------------------------------------ tick
+    def tick(self, state: RobotState) -> ControlOutput:
+        t0 = time.perf_counter()
+        self.state = state
+        self.time = state.time
+        self.grippers_out = []
+        self.wb.update(state.q, state.v)
+        self._update_ft(state)
+        self.fsm.step(self)
+        self._advance_ramps()
+        contacts = [self.contacts[limb] for limb in LIMBS if limb in self.contacts]
+        disabled = self._disabled_pairs()
+        qp_status, solve_ms = QP_NOT_RUN, 0.0
+        result = None
+        try:
+            result = self.wb.solve(contacts, self.active_tasks, disabled)
+            qp_status, solve_ms = QP_OK, result.solution.solve_time * 1e3
+        except QpFailure as failure:
+            qp_status = QP_FAILED
+            self._on_failure(failure)
+            if self.fsm.state != "failure":
+                self.fsm.fire(self, "qp_failure")
+            # one retry with the hold tasks (and contact set) the failure state just set
+            contacts = [self.contacts[limb] for limb in LIMBS if limb in self.contacts]
+            try:
+                result = self.wb.solve(contacts, self.active_tasks, self._disabled_pairs())
+            except QpFailure:
+                result = None
+        fallback = False
+        if result is None:  # the hold QP fails too: relaxed QP (no torque / joint limits), then
+            fallback = True  # the equality-only KKT solve; torques saturated below
+            for relaxed in (self.wb.solve_relaxed, self.wb.solve_equalities):
+                try:
+                    candidate = relaxed(contacts, self.active_tasks)
+                except (QpFailure, np.linalg.LinAlgError):
+                    continue
+                if np.all(np.isfinite(candidate.tau)):
+                    result = candidate
+                    break
+        if result is not None and not fallback:
+            tau = result.tau
+            self._tau_ff = tau.copy()
+            self.last_result = result
+            for limb, c in result.contacts.items():
+                self.last_loads[limb] = c.wrench_in_world
+        elif result is not None:
+            tau = result.tau
+        else:
+            tau = self._fallback_torque(state)
+        tau = np.clip(tau, -self.effort_limits, self.effort_limits)
+        if self.params.mode == "compliance":
+            values = self._pwm(state, tau)
+            mode = "pwm"
+        else:
+            values = tau
+            mode = "torque"
+        if not np.all(np.isfinite(values)):  # never send garbage
+            values = np.zeros(self.na)
+        self.tick_count += 1
+        tick_ms = (time.perf_counter() - t0) * 1e3
+        status = TickStatus(
+            state.time, self.fsm.state, self.params.mode, max(self.transition_index, 0),
+            tuple(limb for limb in LIMBS if limb in self.contacts),
+            tuple(t.name for t in self.active_tasks), tuple(t.last_error for t in self.active_tasks),
+            qp_status, solve_ms, tick_ms, self.qp_failures, fallback, self.replan_needed)
+        wrenches = {limb: c.wrench_in_world for limb, c in result.contacts.items()} if result is not None else {}
+        return ControlOutput(state.time, state.stamp_ns, self.joint_names, mode, values, tau,
+                             list(self.grippers_out), status, wrenches)
+
+    # ------------------------------------------------------------------ failure handling
+    def _on_failure(self, failure: QpFailure) -> None:
+        self.qp_failures += 1
+        p = self.params.qp
+        if len(self.saved_failures) < p.max_saved_failures:
+            folder = pathlib.Path(p.failure_dir)
+            if not folder.is_absolute():
+                folder = project_root() / folder
+            path = folder / f"qp_failure_{int(time.time() * 1e3)}_{self.qp_failures:04d}.npz"
+            failure.saved_path = save_problem(
+                failure.problem, path, solver=failure.solver, status=failure.status, time=self.time,
+                fsm_state=self.fsm.state, contacts=",".join(self.contacts))
+            self.saved_failures.append(path)
+        self.emit("qp_failure", status=failure.status, solver=failure.solver,
+                  saved=str(failure.saved_path or ""))
+
+    def enter_fallback(self) -> None:
+        """Failure state: hold the configuration at failure (QP hold tasks, PD if that fails too)."""
+        self.fallback_active = True
+        self._q_fallback = self.state.q.copy()
+        if self.last_result is None:  # never solved: static equilibrium feed-forward instead
+            self._tau_ff = self._static_torques()
+        self.active_tasks = [self.com_task, self.posture_task, self.base_task]
+        self.hold_here()
+        # a contact still engaging carries little load and is the likely culprit: drop it
+        for limb, ramp in list(self.ramps.items()):
+            if ramp.kind == "engage":
+                self.remove_contact(limb)
+        self.ramps.clear()
+        for contact in self.contacts.values():
+            contact.scale, contact.ramp_cap = 1.0, None
+
+    def _static_torques(self) -> np.ndarray:
+        """Joint torques [N m] holding the current configuration still on the active contacts:
+        the least-norm contact wrenches balancing gravity on the base rows (no friction or torque
+        limits: a feed-forward for the fallback PD, not a QP)."""
+        g = pin.computeGeneralizedGravity(self.model, self.ref_data, self.state.q)
+        contacts = [self.contacts[limb] for limb in LIMBS if limb in self.contacts]
+        if not contacts:
+            return g[6:].copy()
+        J = np.vstack([self.wb._contact_kinematics(c)[0] for c in contacts])  # (6k, nv)
+        wrenches = np.linalg.pinv(J[:, :6].T) @ g[:6]
+        return g[6:] - J[:, 6:].T @ wrenches
+
+    def _fallback_torque(self, state: RobotState) -> np.ndarray:
+        f = self.params.fallback
+        q_hold = self._q_fallback if self._q_fallback is not None else state.q
+        inertia = np.diag(self.wb.data.M)[6:]  # [kg m^2] joint-space inertia of each joint
+        kp = inertia * f.natural_frequency ** 2
+        kd = inertia * 2.0 * f.damping_ratio * f.natural_frequency
+        return self._tau_ff + kp * (q_hold[7:] - state.q[7:]) - kd * state.v[6:]
+
+    # ------------------------------------------------------------------ compliance
+    def _pwm(self, state: RobotState, tau: np.ndarray) -> np.ndarray:
+        ff = tau if self.params.compliance.feedforward == "qp" else None
+        return self.compliance.duty(self.posture_task.q_joints, state.q[7:], self.posture_task.v_joints,
+                                    state.v[6:], ff)
+
+    # ------------------------------------------------------------------ F/T
+    def _update_ft(self, state: RobotState) -> None:
+        tau_f = self.params.guarded.filter_time_constant_s
+        alpha = 1.0 if tau_f <= 0 else min(1.0, self.params.control_period_s / tau_f)
+        for limb, spec in self.limbs.items():
+            sensor = spec.ft_sensor
+            wrench = state.ft.get(sensor)
+            fid = self._ft_frames.get(sensor)
+            if wrench is None or fid is None:
+                continue
+            force_world = self.wb.data.oMf[fid].rotation @ np.asarray(wrench[:3], float)
+            previous = self._ft_filtered.get(limb)
+            self._ft_filtered[limb] = force_world if previous is None else previous + alpha * (force_world - previous)
+
+    def ft_force(self, limb: str) -> np.ndarray:
+        """Filtered F/T force of the limb's sensor in world axes [N]."""
+        return self._ft_filtered.get(limb, np.zeros(3)).copy()
+
+    def tare_ft(self, limb: str) -> None:
+        self._ft_tare[limb] = self.ft_force(limb)
+
+    def ft_force_change(self, limb: str) -> float:
+        """Contact force [N] the limb's F/T has seen since the tare: the change of the filtered
+        force against the approach direction (an obstacle pushes the limb back), or its norm when
+        no approach direction is known."""
+        change = self.ft_force(limb) - self._ft_tare.get(limb, self.ft_force(limb))
+        direction = self._approach.get(limb)
+        if direction is None:
+            return float(np.linalg.norm(change))
+        return float(-change @ direction)
+
+    # ------------------------------------------------------------------ contacts (owned here)
+    def has_contact(self, limb: str) -> bool:
+        return limb in self.contacts
+
+    def _activate(self, limb: str, hold: Hold, engage: bool) -> None:
+        c = self.params.contacts
+        fid = self.limb_frame_ids[limb]
+        torque_limit = c.grasp_torque_limit
+        grip = self.robot.config.grip_strength * c.grip_force_fraction
+        if hold.bilateral and hold.grip_force_limit > 0:
+            grip = hold.grip_force_limit * c.grip_force_fraction
+        hold_for_qp = hold if not hold.bilateral else Hold(hold.limb, hold.robot_surface, hold.env_surface,
+                                                           hold.points, hold.friction, True, grip)
+        contact = contact_from_hold(hold_for_qp, fid, self.wb.data.oMf[fid], self.limb_surface[limb],
+                                    force_limit=grip if hold.bilateral else c.unilateral_force_limit,
+                                    torque_limit=torque_limit, min_normal_force=c.min_normal_force,
+                                    friction_margin=c.friction_margin,
+                                    generators_per_point=c.generators_per_point)
+        if engage and c.engage_ramp_s > 0:
+            contact.scale = 0.0
+            self.ramps[limb] = _Ramp("engage", self.time, c.engage_ramp_s)
+        self.contacts[limb] = contact
+        self.holds[limb] = hold
+        self.emit("contact_added", limb=limb, surface=hold.env_surface)
+
+    def begin_release(self, limb: str) -> None:
+        load = self.last_loads.get(limb)
+        contact = self.contacts.get(limb)
+        if contact is None:
+            return
+        if contact.bilateral:
+            # (force norm, largest moment component) carried now, plus a margin
+            cap0 = (np.array([np.linalg.norm(load[:3]) + 1.0, np.max(np.abs(load[3:])) + 0.5])
+                    if load is not None else np.array([contact.force_limit, contact.torque_limit]))
+        else:
+            cap0 = float(np.dot(load[:3], self._mean_normal(contact))) + 1.0 if load is not None else contact.force_limit
+        self.ramps[limb] = _Ramp("release", self.time, self.params.contacts.release_ramp_s, cap0)
+        self.emit("release_started", limb=limb)
+
+    def release_done(self, limb: str) -> bool:
+        ramp = self.ramps.get(limb)
+        return ramp is None or (ramp.kind == "release" and ramp.fraction(self.time) >= 1.0)
+
+    def remove_contact(self, limb: str) -> None:
+        if self.contacts.pop(limb, None) is not None:
+            self.ramps.pop(limb, None)
+            self.emit("contact_removed", limb=limb)
+
+    def add_contact(self, limb: str) -> None:
+        """The moving limb's planned hold, moved to where the limb actually is (rung offsets)."""
+        hold = self._hold_at_actual_pose(limb)
+        self._activate(limb, hold, engage=True)
+        self.set_guard(limb, hold.env_surface, True)
+
+    def contact_ready(self, limb: str) -> bool:
+        ramp = self.ramps.get(limb)
+        return ramp is None or ramp.fraction(self.time) >= 1.0
+
+    def _mean_normal(self, contact: ActiveContact) -> np.ndarray:
+        if len(contact.normals_in_world) == 0:
+            return np.array([0.0, 0.0, 1.0])
+        n = contact.normals_in_world.mean(axis=0)
+        return n / np.linalg.norm(n)
+
+    def _advance_ramps(self) -> None:
+        for limb, ramp in list(self.ramps.items()):
+            contact = self.contacts.get(limb)
+            if contact is None:
+                del self.ramps[limb]
+                continue
+            f = ramp.fraction(self.time)
+            if ramp.kind == "engage":
+                contact.scale = f
+                contact.ramp_cap = None
+                if f >= 1.0:
+                    del self.ramps[limb]
+            else:
+                remaining = 1.0 - f
+                contact.scale = remaining if not contact.bilateral else 1.0
+                contact.ramp_cap = ramp.cap0 * remaining
+
+    def _hold_at_actual_pose(self, limb: str) -> Hold:
+        planned = self.transition.target_stance.hold(limb) if self.transition is not None else None
+        if planned is None:
+            planned = self.holds.get(limb)
+        if planned is None:
+            raise RuntimeError(f"no hold known for {limb}")
+        if planned.bilateral or self.reference is None:
+            return planned
+        fid = self.limb_frame_ids[limb]
+        pin.framesForwardKinematics(self.model, self.ref_data, self.reference.end)
+        T_plan = self.ref_data.oMf[fid]
+        T_now = self.wb.data.oMf[fid]
+        # the contact points move with the limb (a rung off its planned place); the normals are
+        # the environment's and stay as planned
+        T = T_now * T_plan.inverse()
+        points = tuple(type(p)(T.act(p.position), p.normal) for p in planned.points)
+        return Hold(planned.limb, planned.robot_surface, planned.env_surface, points, planned.friction,
+                    planned.bilateral, planned.grip_force_limit)
+
+    def _disabled_pairs(self) -> set[tuple[str, str]]:
+        out = set()
+        for limb, hold in self.holds.items():
+            if limb in self.contacts:
+                for link in self.limb_links[limb]:
+                    out.add((link, hold.env_surface))
+        for limb, surface in self.guard_off:
+            for link in self.limb_links[limb]:
+                out.add((link, surface))
+        return out
+
+    def set_guard(self, limb: str, surface: str, on: bool) -> None:
+        """Collision dampers between the limb's links and ``surface`` on (True) or off."""
+        if on:
+            self.guard_off.discard((limb, surface))
+        elif surface:
+            self.guard_off.add((limb, surface))
+
+    # ------------------------------------------------------------------ grippers
+    def gripper(self, hand: str, command: str, position: float = 0.0) -> None:
+        if hand not in HANDS:
+            return
+        self.grippers_out.append(GripperRequest(hand, command, position, self.time))
+        self.emit("gripper", hand=hand, command=command, position=position)
+
+    # ------------------------------------------------------------------ plan / references
+    def next_transition(self) -> Transition | None:
+        if self.plan is None:
+            return None
+        if self.plan_pending:
+            self.plan_pending = False
+            self.transition_index = 0
+        if self.transition is not None and self._finished:
+            self.transition_index += 1
+        self._finished = False
+        if self.transition_index >= len(self.plan.transitions):
+            self.transition = None
+            self.moving_limb = ""
+            return None
+        self.transition = self.plan.transitions[self.transition_index]
+        self.moving_limb = self.transition.moving_limb
+        hold = self.transition.target_stance.hold(self.moving_limb) if self.moving_limb else None
+        self.target_surface = hold.env_surface if hold is not None else ""
+        self.emit("transition_started", index=self.transition_index, primitive=self.transition.primitive,
+                  limb=self.moving_limb)
+        return self.transition
+
+    def finish_transition(self) -> None:
+        self._finished = True
+        if self.moving_limb:
+            self.set_guard(self.moving_limb, self.target_surface, True)
+
+    def hold_here(self) -> None:
+        """Targets = the measured state now (CoM, joints, base orientation); no contact-body task."""
+        data = self.wb.data
+        q = self.state.q
+        self.com_task.set_target(data.com[0].copy())
+        self.posture_task.set_target(q[7:].copy())
+        self.base_task.set_target(pin.Quaternion(q[3:7]).normalized().toRotationMatrix())
+        self._set_contact_body(None)
+        self.reference = None
+
+    def _set_contact_body(self, limb: str | None) -> None:
+        base = [self.com_task, self.posture_task, self.base_task]
+        self.active_tasks = base + ([self.contact_body_tasks[limb]] if limb else [])
+
+    def _reference_quantities(self, q_ref: np.ndarray, limb: str) -> tuple[np.ndarray, pin.SE3 | None]:
+        com = pin.centerOfMass(self.model, self.ref_data, q_ref, False).copy()
+        if not limb:
+            return com, None
+        fid = self.limb_frame_ids[limb]
+        pin.updateFramePlacement(self.model, self.ref_data, fid)
+        M = self.ref_data.oMf[fid]
+        offset = self.limb_surface[limb][:3, 3]
+        return com, pin.SE3(M.rotation.copy(), M.translation + M.rotation @ offset)
+
+    def start_path(self, transition: Transition, moving_limb: str = "") -> None:
+        """Track ``transition.path`` from now; blend out today's offset from its first way-point."""
+        self.reference = PathReference(self.model, transition.times, transition.path)
+        self._path_start = self.time
+        self._path_limb = moving_limb
+        q0 = self.reference.start
+        com0, T0 = self._reference_quantities(q0, moving_limb)
+        q = self.state.q
+        blend = {
+            "com": self.wb.data.com[0] - com0,
+            "joints": q[7:] - q0[7:],
+            "base": pin.log3(pin.Quaternion(q[3:7]).normalized().toRotationMatrix()
+                             @ pin.Quaternion(q0[3:7]).normalized().toRotationMatrix().T),
+        }
+        if moving_limb:
+            task = self.contact_body_tasks[moving_limb]
+            T_now = task.current(self.wb.view)
+            blend["limb_p"] = T_now.translation - T0.translation
+            blend["limb_R"] = pin.log3(T_now.rotation @ T0.rotation.T)
+        self._blend = blend
+        self._set_contact_body(moving_limb or None)
+        if moving_limb:
+            self._approach[moving_limb] = self._approach_direction(moving_limb)
+            self._creep_dir = np.zeros(3)
+        self.track_path()
+
+    def in_approach(self, fraction: float = 0.0) -> bool:
+        """True once the path progress is ``fraction`` into its last segment (the approach)."""
+        ref = self.reference
+        if ref is None:
+            return True
+        s, _ = ref.progress(self.path_elapsed())
+        start = ref.last_segment_start
+        return s >= start + fraction * (1.0 - start)
+
+    def path_elapsed(self) -> float:
+        return self.time - self._path_start
+
+    def path_duration(self) -> float:
+        return self.reference.duration if self.reference is not None else 0.0
+
+    def track_path(self) -> bool:
+        """Set task targets from the path at the current time; True once the path is finished."""
+        ref = self.reference
+        if ref is None:
+            return True
+        t = self.path_elapsed()
+        q_ref, v_ref = ref.sample(t)
+        s, sdot = ref.progress(t)
+        w = 1.0 - s
+        limb = self._path_limb
+        com, T = self._reference_quantities(q_ref, limb)
+        # reference velocities from a short step ahead (the reference is smooth)
+        dt = 1e-3
+        q_next = pin.integrate(self.model, q_ref, v_ref * dt)
+        com_next, T_next = self._reference_quantities(q_next, limb)
+        b = self._blend
+        self.com_task.set_target(com + w * b["com"], (com_next - com) / dt - sdot * b["com"])
+        self.posture_task.set_target(q_ref[7:] + w * b["joints"], v_ref[6:] - sdot * b["joints"])
+        R_base = pin.exp3(w * b["base"]) @ pin.Quaternion(q_ref[3:7]).normalized().toRotationMatrix()
+        self.base_task.set_target(R_base)
+        if limb:
+            p = T.translation + w * b["limb_p"]
+            R = pin.exp3(w * b["limb_R"]) @ T.rotation
+            lin = (T_next.translation - T.translation) / dt - sdot * b["limb_p"]
+            ang = pin.log3(T_next.rotation @ T.rotation.T) / dt
+            self.contact_body_tasks[limb].set_target(pin.SE3(R, p), np.concatenate([lin, ang]))
+            self._creep_base = pin.SE3(R, p)
+            if s >= ref.last_segment_start and self.target_surface:
+                # approach: the damper between the limb and its target surface goes off
+                self.set_guard(limb, self.target_surface, False)
+        return t >= ref.duration
+
+    def freeze_limb(self) -> None:
+        """Stop the moving limb where it is (contact seen): its target = its current pose."""
+        limb = self.moving_limb
+        if not limb:
+            return
+        task = self.contact_body_tasks[limb]
+        T_now = task.current(self.wb.view)
+        task.set_target(T_now)
+        q = self.state.q
+        idx = self.limb_joint_v[limb] - 6
+        q_post = self.posture_task.q_joints.copy()
+        q_post[idx] = q[7:][idx]
+        v_post = self.posture_task.v_joints.copy()
+        v_post[:] = 0.0
+        self.posture_task.set_target(q_post, v_post)
+        com = self.com_task.position.copy()
+        self.com_task.set_target(com)
+        self.emit("limb_frozen", limb=limb, position=T_now.translation.copy())
+
+    def creep(self, distance: float) -> None:
+        """Search: move the limb target ``distance`` [m] past the planned end pose along the approach."""
+        limb = self.moving_limb
+        if not limb or self.reference is None:
+            return
+        if self._creep_dir is None or not np.any(self._creep_dir) or distance <= self.params.guarded.approach_speed * self.params.control_period_s * 1.01:
+            self._creep_dir = self._approach_direction(limb)
+            self._creep_posture = self.posture_task.q_joints.copy()
+            self._creep_origin = self._creep_base
+        T0 = self._creep_origin
+        T = pin.SE3(T0.rotation, T0.translation + distance * self._creep_dir)
+        self.contact_body_tasks[limb].set_target(T, np.concatenate([self.params.guarded.approach_speed * self._creep_dir,
+                                                                    np.zeros(3)]))
+        # joint reference for the limb follows by one damped least-squares step (compliance mode)
+        J = pin.getFrameJacobian(self.model, self.wb.data, self.limb_frame_ids[limb], pin.LOCAL_WORLD_ALIGNED)[:3]
+        idx = self.limb_joint_v[limb]
+        Jl = J[:, idx]
+        step = self.params.guarded.approach_speed * self.params.control_period_s * self._creep_dir
+        dq = Jl.T @ np.linalg.solve(Jl @ Jl.T + 1e-4 * np.eye(3), step)
+        q_post = self.posture_task.q_joints.copy()
+        q_post[idx - 6] += dq
+        self.posture_task.set_target(q_post)
+
+    def _approach_direction(self, limb: str) -> np.ndarray:
+        ref = self.reference
+        end_com, T_end = self._reference_quantities(ref.end, limb)
+        q_before, _ = ref.sample(0.8 * ref.duration)
+        _, T_before = self._reference_quantities(q_before, limb)
+        d = T_end.translation - T_before.translation
+        if np.linalg.norm(d) < 1e-3:
+            hold = self.transition.target_stance.hold(limb) if self.transition is not None else None
+            d = -hold.normals.mean(axis=0) if hold is not None and len(hold.points) else np.array([0.0, 0.0, -1.0])
+        return d / np.linalg.norm(d)
+
+    # ------------------------------------------------------------------ events
+    def emit(self, kind: str, **values: Any) -> None:
+        self.events.append(ControllerEvent(self.time, kind, values))
+
+    def events_of(self, kind: str) -> list[ControllerEvent]:
+        return [e for e in self.events if e.kind == kind]

@@ -1,0 +1,426 @@
+"""The contact finite-state machine (multicontact_darpa_tasks.txt, section III-D).
+
+The transition table lives in config/fsm/<name>.yaml (:func:`load_fsm_table`); the states are
+the classes below. A state has a documented lifecycle:
+
+- ``start(ctx)``: set the tasks / targets it needs, request contact or gripper changes;
+- ``run(ctx) -> event | None``: once per tick, after the new state arrived, before the QP;
+- ``teardown(ctx)``: remove the tasks it added.
+
+States act through the *context* (the controller, :class:`controller_node.controller.Controller`):
+they never hold contacts themselves. The controller owns the active contact set; states ask it
+to ramp, release or add a contact. Events raised by ``run`` are looked up in the table; several
+instantaneous states (``select``) may chain within one tick.
+"""
+from __future__ import annotations
+
+import pathlib
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import yaml
+
+from climb_core.contact import HANDS, LIMBS, Hold, Transition
+from climb_core.errors import SpecError
+from climb_core.ros_env import project_root
+
+ANY_STATE = "*"
+LIMB_KINDS = ("hand", "foot")
+
+
+def limb_kind(limb: str) -> str:
+    return "hand" if limb in HANDS else "foot"
+
+
+@dataclass(frozen=True)
+class TableRow:
+    source: str
+    event: str
+    target: str
+    limb: str = ""  # "" | hand | foot
+
+
+@dataclass(frozen=True)
+class FsmTable:
+    initial: str
+    states: dict[str, str]  # name -> description
+    rows: tuple[TableRow, ...]
+
+    def next_state(self, state: str, event: str, moving_limb: str = "") -> str | None:
+        kind = limb_kind(moving_limb) if moving_limb else ""
+        for rows in (r for r in self.rows if r.source == state), (r for r in self.rows if r.source == ANY_STATE):
+            for row in rows:
+                if row.event == event and (not row.limb or row.limb == kind):
+                    return row.target
+        return None
+
+    def events_from(self, state: str) -> set[str]:
+        return {r.event for r in self.rows if r.source in (state, ANY_STATE)}
+
+
+def parse_fsm_table(data: Any, source: str = "fsm") -> FsmTable:
+    """Validate a transition table (SpecError naming the field and the rule)."""
+    if not isinstance(data, dict):
+        raise SpecError(source, "must be a mapping with initial, states, transitions")
+    unknown = set(data) - {"initial", "states", "transitions"}
+    if unknown:
+        raise SpecError(f"{source}.{sorted(unknown)[0]}", "unknown key")
+    states = data.get("states")
+    if not isinstance(states, dict) or not states:
+        raise SpecError(f"{source}.states", "must be a non-empty mapping of state name -> description")
+    missing = sorted(set(states) - set(STATE_CLASSES))
+    if missing:
+        raise SpecError(f"{source}.states.{missing[0]}", f"no such state class; known: {sorted(STATE_CLASSES)}")
+    initial = data.get("initial")
+    if initial not in states:
+        raise SpecError(f"{source}.initial", f"must be one of the states, got {initial!r}")
+    raw_rows = data.get("transitions")
+    if not isinstance(raw_rows, list) or not raw_rows:
+        raise SpecError(f"{source}.transitions", "must be a non-empty list")
+    rows = []
+    seen = set()
+    for i, raw in enumerate(raw_rows):
+        where = f"{source}.transitions[{i}]"
+        if not isinstance(raw, dict) or not {"from", "event", "to"} <= set(raw) or set(raw) - {"from", "event", "to", "limb"}:
+            raise SpecError(where, "must have keys from, event, to (and optionally limb)")
+        row = TableRow(str(raw["from"]), str(raw["event"]), str(raw["to"]), str(raw.get("limb", "")))
+        if row.source != ANY_STATE and row.source not in states:
+            raise SpecError(f"{where}.from", f"unknown state {row.source!r}")
+        if row.target not in states:
+            raise SpecError(f"{where}.to", f"unknown state {row.target!r}")
+        if row.limb and row.limb not in LIMB_KINDS:
+            raise SpecError(f"{where}.limb", f"must be one of {LIMB_KINDS}")
+        key = (row.source, row.event, row.limb)
+        if key in seen:
+            raise SpecError(where, f"duplicate row for state {row.source!r}, event {row.event!r}")
+        seen.add(key)
+        rows.append(row)
+    # every event a state can raise must lead somewhere (for every limb kind it can occur with)
+    for name in states:
+        for event in STATE_CLASSES[name].events:
+            for kind in ("hand", "foot"):
+                limb = "left_hand" if kind == "hand" else "left_foot"
+                table = FsmTable(initial, dict(states), tuple(rows))
+                if table.next_state(name, event, limb) is None:
+                    raise SpecError(f"{source}.transitions", f"state {name!r} raises {event!r} ({kind}) "
+                                                             "but no row handles it")
+    return FsmTable(str(initial), {str(k): str(v) for k, v in states.items()}, tuple(rows))
+
+
+def load_fsm_table(name_or_path: str | pathlib.Path = "default") -> FsmTable:
+    path = pathlib.Path(name_or_path)
+    if not path.suffix:
+        path = project_root() / "config" / "fsm" / f"{name_or_path}.yaml"
+    if not path.is_file():
+        raise SpecError("fsm_table", f"{path} not found")
+    with open(path, encoding="utf-8") as stream:
+        return parse_fsm_table(yaml.safe_load(stream), source=path.stem)
+
+
+# --------------------------------------------------------------------------------------------
+class Context(Protocol):
+    """What states may use (implemented by :class:`controller_node.controller.Controller`)."""
+
+    time: float  # [s]
+    params: Any  # ControllerParams
+    transition: Transition | None  # the plan transition being executed
+    moving_limb: str  # its moving limb ("" for a CoM shift)
+    target_surface: str  # the environment surface the moving limb goes to
+    plan_pending: bool  # a new plan arrived
+    replan_needed: bool
+    contact_body_tasks: dict  # limb -> FrameTask
+
+    def next_transition(self) -> Transition | None: ...
+    def finish_transition(self) -> None: ...
+    def has_contact(self, limb: str) -> bool: ...
+    def hold_here(self) -> None: ...
+    def start_path(self, transition: Transition, moving_limb: str = "") -> None: ...
+    def track_path(self) -> bool: ...
+    def in_approach(self, fraction: float = 0.0) -> bool: ...
+    def begin_release(self, limb: str) -> None: ...
+    def release_done(self, limb: str) -> bool: ...
+    def remove_contact(self, limb: str) -> None: ...
+    def add_contact(self, limb: str) -> None: ...
+    def contact_ready(self, limb: str) -> bool: ...
+    def gripper(self, hand: str, command: str, position: float = 0.0) -> None: ...
+    def tare_ft(self, limb: str) -> None: ...
+    def ft_force_change(self, limb: str) -> float: ...
+    def freeze_limb(self) -> None: ...
+    def creep(self, distance: float) -> None: ...
+    def set_guard(self, limb: str, surface: str, on: bool) -> None: ...
+    def enter_fallback(self) -> None: ...
+    def emit(self, kind: str, **values: Any) -> None: ...
+
+
+class State:
+    name = "state"
+    events: tuple[str, ...] = ()
+
+    def __init__(self) -> None:
+        self.started_at = 0.0
+
+    def elapsed(self, ctx: Context) -> float:
+        return ctx.time - self.started_at
+
+    def start(self, ctx: Context) -> None:
+        pass
+
+    def run(self, ctx: Context) -> str | None:
+        return None
+
+    def teardown(self, ctx: Context) -> None:
+        pass
+
+
+class IdleState(State):
+    name = "idle"
+    events = ("plan",)
+
+    def start(self, ctx: Context) -> None:
+        ctx.hold_here()
+
+    def run(self, ctx: Context) -> str | None:
+        return "plan" if ctx.plan_pending else None
+
+
+class HoldState(IdleState):
+    name = "hold"
+
+    def start(self, ctx: Context) -> None:
+        ctx.hold_here()
+        ctx.emit("plan_done")
+
+
+class ReplanNeededState(IdleState):
+    name = "replan_needed"
+
+    def start(self, ctx: Context) -> None:
+        ctx.hold_here()
+        ctx.replan_needed = True
+        ctx.emit("replan_needed", limb=ctx.moving_limb)
+
+
+class SelectState(State):
+    name = "select"
+    events = ("com_shift", "remove", "add", "plan_done")
+
+    def run(self, ctx: Context) -> str | None:
+        transition = ctx.next_transition()
+        if transition is None:
+            return "plan_done"
+        limb = transition.moving_limb
+        if not limb:
+            return "com_shift"
+        return "remove" if ctx.has_contact(limb) else "add"
+
+
+class MoveComState(State):
+    name = "move_com"
+    events = ("path_done",)
+
+    def start(self, ctx: Context) -> None:
+        ctx.start_path(ctx.transition, "")
+
+    def run(self, ctx: Context) -> str | None:
+        if ctx.track_path():
+            ctx.finish_transition()
+            return "path_done"
+        return None
+
+
+class UnloadState(State):
+    """Remove contact, part 1: hold the path start and ramp the moving limb's force to zero."""
+
+    name = "unload"
+    events = ("unloaded",)
+
+    def start(self, ctx: Context) -> None:
+        ctx.hold_here()
+        ctx.begin_release(ctx.moving_limb)
+
+    def run(self, ctx: Context) -> str | None:
+        return "unloaded" if ctx.release_done(ctx.moving_limb) else None
+
+    def teardown(self, ctx: Context) -> None:
+        if limb_kind(ctx.moving_limb) == "foot":
+            ctx.remove_contact(ctx.moving_limb)
+
+
+class OpenGripperState(State):
+    name = "open_gripper"
+    events = ("opened",)
+
+    def start(self, ctx: Context) -> None:
+        ctx.gripper(ctx.moving_limb, "open")
+
+    def run(self, ctx: Context) -> str | None:
+        return "opened" if self.elapsed(ctx) >= ctx.params.gripper.open_time_s else None
+
+    def teardown(self, ctx: Context) -> None:
+        ctx.remove_contact(ctx.moving_limb)
+
+
+class TransferState(State):
+    """Add contact: the contact-body task follows the way-points; the F/T guards the approach.
+
+    The limb's F/T is tared when the last path segment (the approach) begins, and watched from
+    ``guarded.settle_time_s`` later: a force against the approach direction above
+    ``guarded.force_threshold`` is the contact (early when the path is not finished)."""
+
+    name = "transfer"
+    events = ("contact", "path_end")
+
+    def start(self, ctx: Context) -> None:
+        limb = ctx.moving_limb
+        if ctx.has_contact(limb):  # plan starting with the limb free is fine; otherwise release now
+            ctx.remove_contact(limb)
+        ctx.start_path(ctx.transition, limb)  # the damper of (limb, target surface) goes off on
+        # the last path segment (the approach), see Controller.track_path
+        if limb in HANDS:
+            ctx.gripper(limb, "position", ctx.params.gripper.pregrasp_position)
+        self.tared_at = None
+
+    def run(self, ctx: Context) -> str | None:
+        done = ctx.track_path()
+        g = ctx.params.guarded
+        if self.tared_at is None and ctx.in_approach(g.approach_arm_fraction):
+            ctx.tare_ft(ctx.moving_limb)
+            self.tared_at = ctx.time
+        if self.tared_at is not None:  # stiffen the approach smoothly: a blocked limb pushes harder
+            task = ctx.contact_body_tasks[ctx.moving_limb]
+            k0 = ctx.params.tasks.contact_body.stiffness
+            ramp = min(1.0, (ctx.time - self.tared_at) / max(g.stiffen_time_s, 1e-9))
+            task.stiffness = k0 + ramp * (g.search_stiffness - k0)
+        armed = self.tared_at is not None and ctx.time - self.tared_at >= g.settle_time_s
+        if armed and ctx.ft_force_change(ctx.moving_limb) > g.force_threshold:
+            ctx.freeze_limb()
+            ctx.emit("contact_detected", limb=ctx.moving_limb, early=not done, state=self.name)
+            return "contact"
+        return "path_end" if done else None
+
+    def teardown(self, ctx: Context) -> None:  # (search sets its own stiffness in start)
+        ctx.contact_body_tasks[ctx.moving_limb].stiffness = ctx.params.tasks.contact_body.stiffness
+
+
+class SearchState(State):
+    """Past the planned pose without contact: creep along the approach direction, bounded."""
+
+    name = "search"
+    events = ("contact", "exhausted")
+
+    def start(self, ctx: Context) -> None:
+        self.travelled = 0.0
+        ctx.contact_body_tasks[ctx.moving_limb].stiffness = ctx.params.guarded.search_stiffness
+        ctx.emit("search_started", limb=ctx.moving_limb)
+
+    def teardown(self, ctx: Context) -> None:
+        ctx.contact_body_tasks[ctx.moving_limb].stiffness = ctx.params.tasks.contact_body.stiffness
+
+    def run(self, ctx: Context) -> str | None:
+        g = ctx.params.guarded
+        if ctx.ft_force_change(ctx.moving_limb) > g.force_threshold:
+            ctx.freeze_limb()
+            ctx.emit("contact_detected", limb=ctx.moving_limb, early=False, state=self.name,
+                     extra_travel=self.travelled)
+            return "contact"
+        if self.travelled >= g.search_distance:
+            ctx.freeze_limb()
+            return "exhausted"
+        step = g.approach_speed * ctx.params.control_period_s
+        self.travelled += step
+        ctx.creep(self.travelled)
+        return None
+
+
+class CloseGripperState(State):
+    name = "close_gripper"
+    events = ("closed",)
+
+    def start(self, ctx: Context) -> None:
+        ctx.gripper(ctx.moving_limb, "close")
+
+    def run(self, ctx: Context) -> str | None:
+        return "closed" if self.elapsed(ctx) >= ctx.params.gripper.close_time_s else None
+
+
+class LoadState(State):
+    name = "load"
+    events = ("loaded",)
+
+    def start(self, ctx: Context) -> None:
+        ctx.add_contact(ctx.moving_limb)
+
+    def run(self, ctx: Context) -> str | None:
+        if ctx.contact_ready(ctx.moving_limb):
+            ctx.finish_transition()
+            return "loaded"
+        return None
+
+
+class FailureState(State):
+    name = "failure"
+    events = ()
+
+    def start(self, ctx: Context) -> None:
+        ctx.enter_fallback()
+
+
+STATE_CLASSES: dict[str, type[State]] = {cls.name: cls for cls in (
+    IdleState, HoldState, ReplanNeededState, SelectState, MoveComState, UnloadState, OpenGripperState,
+    TransferState, SearchState, CloseGripperState, LoadState, FailureState)}
+
+
+class Fsm:
+    """Runs the states of a table; ``step`` once per tick, ``fire`` for external events."""
+
+    MAX_CHAIN = 8  # instantaneous transitions allowed within one tick
+
+    def __init__(self, table: FsmTable):
+        self.table = table
+        self.states = {name: STATE_CLASSES[name]() for name in table.states}
+        self.current = self.states[table.initial]
+        self.history: list[tuple[float, str, str, str]] = []  # (time, from, event, to)
+        self._started = False
+
+    @property
+    def state(self) -> str:
+        return self.current.name
+
+    def begin(self, ctx: Context) -> None:
+        self.current.started_at = ctx.time
+        self.current.start(ctx)
+        self._started = True
+
+    def fire(self, ctx: Context, event: str) -> bool:
+        """Apply ``event`` now; False when the table has no row for it in the current state."""
+        target = self.table.next_state(self.current.name, event, ctx.moving_limb)
+        if target is None:
+            return False
+        self.history.append((ctx.time, self.current.name, event, target))
+        self.current.teardown(ctx)
+        self.current = self.states[target]
+        self.current.started_at = ctx.time
+        self.current.start(ctx)
+        return True
+
+    def step(self, ctx: Context) -> None:
+        if not self._started:
+            self.begin(ctx)
+        for _ in range(self.MAX_CHAIN):
+            event = self.current.run(ctx)
+            if event is None:
+                return
+            if not self.fire(ctx, event):
+                raise SpecError("fsm", f"state {self.current.name!r} raised {event!r}, which the table "
+                                       "does not handle")
+
+
+def moving_hold(transition: Transition) -> Hold | None:
+    """The hold the moving limb makes at the end of ``transition`` (None for a CoM shift)."""
+    if not transition.moving_limb:
+        return None
+    return transition.target_stance.hold(transition.moving_limb)
+
+
+__all__ = ["FsmTable", "TableRow", "Fsm", "State", "STATE_CLASSES", "load_fsm_table", "parse_fsm_table",
+           "limb_kind", "moving_hold", "LIMBS"]

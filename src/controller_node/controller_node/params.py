@@ -1,0 +1,238 @@
+"""Controller parameters: config/nodes/controller.yaml as a frozen dataclass schema.
+
+Built on :mod:`climb_core.params` (ROS params layout, every leaf with default, unit, description
+and range). The node declares them from :func:`climb_core.params.describe`, reads them back and
+calls :func:`parse_controller_params`; tests and scripts call :func:`load_controller_params` on
+the same file. Libraries receive the dataclass, never raw dicts.
+"""
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+from climb_core.errors import SpecError
+from climb_core.params import default_params_file, flatten, group, load_params, param, parse_params
+
+NODE_NAME = "controller"
+
+
+@dataclass(frozen=True)
+class QpParams:
+    solver: str = param("daqp", unit="-", choices=("daqp", "proxsuite"),
+                        description="daqp called directly, or proxsuite dense warm-started")
+    time_limit_s: float = param(0.004, unit="s", min=0.0, description="solver wall-time bound (0 = none)")
+    iter_limit: int = param(1000, unit="-", min=1, description="solver iteration limit")
+    failure_dir: str = param("build/qp_failures", unit="-",
+                             description="failing QPs are saved here as .npz (relative to the project root)")
+    max_saved_failures: int = param(50, unit="-", min=0, description="stop saving failing QPs after this many")
+    acceleration_regularization: float = param(1e-5, unit="-", min=1e-12, description="weight on |qdd|^2")
+    force_regularization: float = param(1e-4, unit="1/N^2", min=1e-12,
+                                        description="weight on the squared contact force variables")
+    torque_regularization: float = param(1.0, unit="-", min=0.0,
+                                         description="weight on sum (tau_i / tau_max_i)^2: keeps joints away from "
+                                                     "saturation and makes the contact force split unique")
+    contact_velocity_gain: float = param(10.0, unit="1/s", min=0.0,
+                                         description="J qdd + Jdot v = -k J v on held contacts (drift damping)")
+    torque_limit_fraction: float = param(0.95, unit="-", min=0.0, max=1.0,
+                                         description="share of the URDF effort limit the QP may use")
+    joint_limit_horizon_s: float = param(0.1, unit="s", min=1e-3,
+                                         description="horizon of the joint position-limit acceleration bounds")
+    joint_limit_margin: float = param(0.02, unit="rad", min=0.0, description="distance kept from the URDF joint limits")
+    joint_acceleration_bound: float = param(400.0, unit="rad/s^2", min=1.0, description="|qdd| bound of every joint")
+    base_acceleration_bound: float = param(100.0, unit="m/s^2", min=1.0,
+                                           description="|qdd| bound of the free-flyer (linear and angular)")
+
+
+@dataclass(frozen=True)
+class ContactParams:
+    friction_margin: float = param(0.8, unit="-", min=0.05, max=1.0,
+                                   description="the QP's friction cones use margin * mu")
+    generators_per_point: int = param(4, unit="-", min=3, description="edges of the linearised friction cone")
+    min_normal_force: float = param(1.0, unit="N", min=0.0,
+                                    description="minimum normal force per point of an established unilateral contact")
+    unilateral_force_limit: float = param(800.0, unit="N", min=1.0,
+                                          description="cap on the total normal force of one unilateral contact")
+    grip_force_fraction: float = param(0.8, unit="-", min=0.0, max=1.0,
+                                       description="share of the robot's grip strength the QP may use")
+    grasp_torque_limit: float = param(6.0, unit="N m", min=0.0, description="per-axis moment cap of a closed grasp")
+    release_ramp_s: float = param(0.4, unit="s", min=0.01, description="force ramp to zero before a release")
+    engage_ramp_s: float = param(0.2, unit="s", min=0.0, description="force ramp up after a contact is made")
+    released_force_threshold: float = param(8.0, unit="N", min=0.0,
+                                            description="a contact counts as unloaded below this force")
+
+
+def _task_gains(name: str, weight: float, stiffness: float, orientation_weight: float = 1.0) -> type:
+    """A frozen gains dataclass whose defaults are this task's (the schema builds groups from
+    class defaults)."""
+    namespace = {
+        "__annotations__": {"weight": float, "stiffness": float, "orientation_weight": float},
+        "weight": param(weight, unit="-", min=0.0, description="task weight in the QP cost"),
+        "stiffness": param(stiffness, unit="1/s^2", min=0.0, description="PD stiffness k; damping is 2 sqrt(k)"),
+        "orientation_weight": param(orientation_weight, unit="-", min=0.0,
+                                    description="relative weight of the angular rows of a 6D task [m^2/rad^2]"),
+        "__module__": __name__,
+    }
+    return dataclass(frozen=True)(type(name, (), namespace))
+
+
+ComGains = _task_gains("ComGains", 100.0, 60.0)
+PostureGains = _task_gains("PostureGains", 1.0, 40.0)
+BaseOrientationGains = _task_gains("BaseOrientationGains", 20.0, 60.0)
+ContactBodyGains = _task_gains("ContactBodyGains", 200.0, 150.0, 0.3)
+#: any of the gains classes above (weight, stiffness, orientation_weight)
+TaskGains = Any
+
+
+@dataclass(frozen=True)
+class TaskParams:
+    com: ComGains = group(ComGains, "centre-of-mass position task")
+    posture: PostureGains = group(PostureGains, "whole-body joint task")
+    base_orientation: BaseOrientationGains = group(BaseOrientationGains, "free-flyer orientation task")
+    contact_body: ContactBodyGains = group(ContactBodyGains, "moving limb pose task (way-points)")
+
+
+@dataclass(frozen=True)
+class CollisionParams:
+    enabled: bool = param(True, unit="-", description="velocity-damper collision avoidance on")
+    influence_distance: float = param(0.06, unit="m", min=1e-3, description="d_i: dampers act below this distance")
+    security_distance: float = param(0.01, unit="m", min=0.0, description="d_s: distance treated as a collision")
+    damping: float = param(0.4, unit="m/s", min=1e-3, description="xi: approach speed allowed at d_i")
+    max_braking: float = param(30.0, unit="m/s^2", min=0.0,
+                               description="largest separating acceleration a damper may demand (keeps the QP "
+                                           "feasible when a pair enters the zone too fast)")
+    broadphase_margin: float = param(0.0, unit="m", min=0.0,
+                                     description="bounding-sphere prefilter margin before calling coal")
+    env_links: tuple[str, ...] = param(
+        ("left_hand_palm_link", "right_hand_palm_link", "left_wrist_yaw_link", "right_wrist_yaw_link",
+         "left_hand_index_1_link", "right_hand_index_1_link", "left_hand_middle_1_link",
+         "right_hand_middle_1_link", "left_hand_thumb_2_link", "right_hand_thumb_2_link",
+         "left_elbow_link", "right_elbow_link", "left_knee_link", "right_knee_link",
+         "left_ankle_roll_link", "right_ankle_roll_link"), unit="-",
+        description="robot links checked against the environment")
+    env_roles: tuple[str, ...] = param(("rung", "rail", "stringer", "platform", "obstacle"), unit="-",
+                                       description="environment surface roles checked")
+    self_pairs: tuple[str, ...] = param(
+        ("left_hand_palm_link:right_hand_palm_link", "left_knee_link:right_knee_link",
+         "left_ankle_roll_link:right_ankle_roll_link"), unit="-",
+        description="robot link pairs checked against each other, 'link_a:link_b'")
+
+    @property
+    def self_pair_tuples(self) -> tuple[tuple[str, str], ...]:
+        return tuple(tuple(p.split(":", 1)) for p in self.self_pairs)  # type: ignore[misc]
+
+
+@dataclass(frozen=True)
+class GuardedParams:
+    force_threshold: float = param(6.0, unit="N", min=0.1,
+                                   description="F/T force change (tared at motion start) that means contact")
+    approach_speed: float = param(0.04, unit="m/s", min=1e-3, description="slow search speed past the planned pose")
+    search_stiffness: float = param(400.0, unit="1/s^2", min=0.0,
+                                    description="contact-body task stiffness on the approach and while creeping past "
+                                                "the planned pose (a blocked limb builds force within a few mm)")
+    stiffen_time_s: float = param(0.3, unit="s", min=0.0,
+                                  description="the contact-body stiffness ramps to search_stiffness over this time "
+                                              "once the approach begins")
+    search_distance: float = param(0.05, unit="m", min=0.0,
+                                   description="max extra travel before reporting that replanning is needed")
+    filter_time_constant_s: float = param(0.01, unit="s", min=0.0, description="first-order filter on the F/T force")
+    approach_arm_fraction: float = param(0.0, unit="-", min=0.0, max=1.0,
+                                         description="contact checks start this far into the last path segment "
+                                                     "(the approach; the F/T is tared again there), plus settle_time_s")
+    settle_time_s: float = param(0.05, unit="s", min=0.0,
+                                 description="the F/T is tared when the approach starts and checked from this "
+                                             "time later (transients of the contact-set change settle)")
+
+
+@dataclass(frozen=True)
+class FallbackParams:
+    natural_frequency: float = param(15.0, unit="rad/s", min=0.0,
+                                     description="joint PD around the configuration at failure, gains scaled by "
+                                                 "the joint-space inertia M_ii: kp = M_ii w^2, kd = 2 zeta w M_ii "
+                                                 "(stable at the 200 Hz update on light and heavy joints alike)")
+    damping_ratio: float = param(1.0, unit="-", min=0.0, description="zeta of the fallback PD")
+
+
+@dataclass(frozen=True)
+class ComplianceParams:
+    feedforward: str = param("qp", unit="-", choices=("none", "qp"),
+                             description="f of eq. 1: none (paper) or the QP's torques converted to duty")
+    current_margin: float = param(0.85, unit="-", min=0.05, max=1.0,
+                                  description="duty clamped so the predicted current stays below margin * limit")
+    gain_scale: float = param(0.3, unit="-", min=0.0, max=1.0,
+                              description="multiplies the robot config's PWM kP / kD: the config's leg gains "
+                                          "(10 duty/rad) oscillate with a 200 Hz duty update (measured: stable "
+                                          "at 0.3, marginal at 0.5, unstable at 1.0)")
+
+
+@dataclass(frozen=True)
+class GripperParams:
+    close_time_s: float = param(0.3, unit="s", min=0.0, description="wait after CLOSE before the grasp is loaded")
+    open_time_s: float = param(0.2, unit="s", min=0.0, description="wait after OPEN before the hand moves")
+    pregrasp_position: float = param(0.0, unit="-", min=0.0, max=1.0,
+                                     description="finger position (0 open .. 1 closed) while the hand travels")
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    robot: str = param("g1", unit="-", description="robot config name (config/robots/<name>.yaml) or path")
+    mode: str = param("qp", unit="-", choices=("qp", "compliance"),
+                      description="qp: torques from the whole-body QP; compliance: PWM per joint (eq. 1)")
+    execution: str = param("lockstep", unit="-", choices=("lockstep", "realtime"),
+                           description="lockstep: compute on each joint_states; realtime: wall-clock timer")
+    control_period_s: float = param(0.005, unit="s", min=1e-4, description="control period (200 Hz)")
+    ladder: str = param("default", unit="-",
+                        description="ladder spec (config/ladders/<name>.yaml or a path): the environment of the "
+                                    "collision dampers and holds (the planner's nominal one)")
+    initial_stance: str = param("standing", unit="-",
+                                description="stance fixture (climb_core.fixtures) whose holds are active at "
+                                            "activation (the bridge's initial_posture)")
+    autostart: bool = param(True, unit="-", description="node: configure and activate on start-up")
+    fsm_table: str = param("default", unit="-", description="config/fsm/<name>.yaml or a path")
+    state_timeout_s: float = param(0.05, unit="s", min=0.0,
+                                   description="realtime: no command from a state older than this")
+    estimator: str = param("ground_truth", unit="-", choices=("ground_truth",),
+                           description="base state source (sim/base_truth in simulation)")
+    qp: QpParams = group(QpParams, "whole-body QP")
+    contacts: ContactParams = group(ContactParams, "contact model and force ramps")
+    tasks: TaskParams = group(TaskParams, "task weights and stiffnesses")
+    collision: CollisionParams = group(CollisionParams, "velocity-damper collision avoidance (eq. 6-8)")
+    guarded: GuardedParams = group(GuardedParams, "guarded motion of the add-contact state")
+    fallback: FallbackParams = group(FallbackParams, "safe hold after a QP failure")
+    compliance: ComplianceParams = group(ComplianceParams, "PWM compliance mode")
+    gripper: GripperParams = group(GripperParams, "gripper states")
+
+    def replace(self, **changes: Any) -> "ControllerParams":
+        """Copy with dotted changes: ``params.replace(**{"qp.solver": "proxsuite"})``."""
+        flat = flatten(self)
+        for key, value in changes.items():
+            flat[key] = value
+        return parse_controller_params(flat)
+
+
+def _check(params: ControllerParams) -> ControllerParams:
+    c = params.collision
+    if c.security_distance >= c.influence_distance:
+        raise SpecError(f"{NODE_NAME}.collision.security_distance", "must be smaller than collision.influence_distance")
+    for i, pair in enumerate(c.self_pairs):
+        parts = pair.split(":")
+        if len(parts) != 2 or not all(parts):
+            raise SpecError(f"{NODE_NAME}.collision.self_pairs[{i}]", "must be 'link_a:link_b'")
+    return params
+
+
+def parse_controller_params(values: Mapping[str, Any]) -> ControllerParams:
+    """Flat (dotted) or nested ``ros__parameters`` mapping -> ControllerParams."""
+    return _check(parse_params(values, ControllerParams, NODE_NAME))
+
+
+def default_params_path() -> pathlib.Path:
+    return default_params_file(NODE_NAME)
+
+
+def load_controller_params(path: str | pathlib.Path | None = None, **overrides: Any) -> ControllerParams:
+    """Read config/nodes/controller.yaml (or ``path``) and apply dotted overrides
+    (``load_controller_params(**{"qp.solver": "proxsuite"})``)."""
+    params = _check(load_params(path if path is not None else default_params_path(), ControllerParams, NODE_NAME))
+    return params.replace(**overrides) if overrides else params

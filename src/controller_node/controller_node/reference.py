@@ -1,0 +1,79 @@
+"""Time-parameterised references along a transition's way-points.
+
+A transition path is a list of Pinocchio configurations with times. :class:`PathReference`
+samples it with a minimum-jerk time scaling over the whole duration (start and end at rest) and
+piecewise-geodesic interpolation between way-points (``pin.interpolate``). It also blends out the
+offset between the robot's actual state when the path starts and the path's first way-point,
+``(1 - s(t)) * offset``, so tracking starts without a jump and ends on the plan.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+
+def min_jerk(u: float) -> tuple[float, float]:
+    """s(u) and ds/du of the minimum-jerk profile on u in [0, 1]."""
+    u = min(max(u, 0.0), 1.0)
+    s = u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u)
+    ds = 30.0 * u * u * (1.0 - u) ** 2
+    return s, ds
+
+
+class PathReference:
+    """q_ref(t) and v_ref(t) along way-points ``path`` (n, nq) at ``times`` (n,) [s]."""
+
+    def __init__(self, model: pin.Model, times: np.ndarray, path: np.ndarray, min_duration: float = 0.5):
+        self.model = model
+        path = np.asarray(path, dtype=float).reshape(-1, model.nq)
+        times = np.asarray(times, dtype=float).reshape(-1)
+        if len(path) == 0:
+            raise ValueError("empty path")
+        if len(times) != len(path):
+            times = np.linspace(0.0, max(min_duration, 0.0), len(path))
+        times = times - times[0]
+        if np.any(np.diff(times) < 0):
+            raise ValueError("way-point times must not decrease")
+        self.path = path
+        self.times = times
+        self.duration = max(float(times[-1]), min_duration)  # [s]
+        # path-axis times rescaled onto [0, 1]
+        self._u = times / times[-1] if times[-1] > 0 else np.linspace(0.0, 1.0, len(path))
+
+    def _at(self, s: float) -> np.ndarray:
+        if len(self.path) == 1:
+            return self.path[0].copy()
+        k = int(np.searchsorted(self._u, s, side="right")) - 1
+        k = min(max(k, 0), len(self.path) - 2)
+        span = self._u[k + 1] - self._u[k]
+        alpha = 0.0 if span <= 0 else (s - self._u[k]) / span
+        return pin.interpolate(self.model, self.path[k], self.path[k + 1], min(max(alpha, 0.0), 1.0))
+
+    def progress(self, t: float) -> tuple[float, float]:
+        """Min-jerk progress s in [0, 1] and ds/dt [1/s] at time t from the start."""
+        s, ds = min_jerk(t / self.duration)
+        return s, ds / self.duration
+
+    def sample(self, t: float, dt: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+        """q_ref (nq,) and v_ref (nv,) at t [s] (v by a central difference on the path axis)."""
+        s, sdot = self.progress(t)
+        q = self._at(s)
+        if sdot <= 0.0:
+            return q, np.zeros(self.model.nv)
+        h = 1e-3
+        lo, hi = max(s - h, 0.0), min(s + h, 1.0)
+        dq_ds = pin.difference(self.model, self._at(lo), self._at(hi)) / (hi - lo)
+        return q, dq_ds * sdot
+
+    @property
+    def last_segment_start(self) -> float:
+        """Progress s at which the last way-point segment (the approach) begins."""
+        return float(self._u[-2]) if len(self._u) >= 2 else 0.0
+
+    @property
+    def start(self) -> np.ndarray:
+        return self.path[0]
+
+    @property
+    def end(self) -> np.ndarray:
+        return self.path[-1]

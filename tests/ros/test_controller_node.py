@@ -1,0 +1,199 @@
+"""The `controller` lifecycle node with the `sim_bridge` node in lock-step (three processes).
+
+The observer (this file run as a script) drives the controller's lifecycle through its services
+(unconfigured -> configure -> inactive: no command -> activate), sends a whole-body plan (right
+hand rung 5 -> rung 6) on whole_body_plan and records joint_states, controller/state, the
+bridge's and the controller's diagnostics.
+"""
+from __future__ import annotations
+
+import json
+import pathlib
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.ros
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+TICKS = 1100  # 5.5 s of sim time: the hand transfer takes ~4.6 s
+
+
+def test_controller_node_runs_a_hand_transfer_in_lockstep_with_the_bridge(tmp_path):
+    from climb_core.ros_env import local_dds_env
+
+    env = local_dds_env()
+    out = tmp_path / "observer.json"
+    bridge = subprocess.Popen(
+        [sys.executable, "-m", "sim_bridge.node", "--ros-args", "--params-file",
+         str(ROOT / "config" / "nodes" / "sim_bridge.yaml"), "-p", f"max_ticks:={TICKS}",
+         "-p", "initial_posture:=ladder_4_contacts", "-p", "execution:=lockstep"],
+        env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    controller = subprocess.Popen(
+        [sys.executable, "-m", "controller_node.node", "--ros-args", "--params-file",
+         str(ROOT / "config" / "nodes" / "controller.yaml"), "-p", "autostart:=false",
+         "-p", "initial_stance:=ladder_4_contacts"],
+        env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    observer = subprocess.Popen([sys.executable, __file__, str(out)], env=env, cwd=ROOT,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        o_out, _ = observer.communicate(timeout=150)
+        b_out, _ = bridge.communicate(timeout=30)
+    finally:
+        for proc in (observer, bridge):
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        controller.send_signal(2)  # SIGINT: the node exits cleanly
+        try:
+            c_out, _ = controller.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            controller.kill()
+            c_out, _ = controller.communicate()
+    assert observer.returncode == 0, o_out.decode()[-3000:]
+    assert bridge.returncode == 0, b_out.decode()[-3000:]
+    assert controller.returncode == 0, c_out.decode()[-3000:]
+    r = json.loads(out.read_text())
+    # lifecycle: nothing commanded before activation
+    assert r["lifecycle"] == ["unconfigured", "inactive", "active"]
+    assert r["commands_while_inactive"] == 0
+    # lock-step: the run reached its last tick, every state seen got its controller answer (the
+    # observer may join a few ticks late), and the bridge never reported the controller lost
+    assert r["last_stamp_ns"] == TICKS * 5_000_000
+    assert r["n_states"] >= TICKS - 20
+    assert r["answered"] == r["n_states"]
+    assert not r["lost"]
+    # the transfer ran through the FSM and ended with the hand on rung 6, nothing fell
+    assert r["fsm_states"][-1] == "hold", r["fsm_states"]
+    for s in ("unload", "open_gripper", "transfer", "close_gripper", "load"):
+        assert s in r["fsm_states"]
+    assert r["max_qp_failures"] == 0
+    assert r["grasp_latched"] == "right_hand rung_6"
+    assert r["min_base_z"] > r["base_z0"] - 0.05
+    # the node measured its own state -> command latency
+    assert 0.0 < r["diag"]["latency_p50_ms"] < 20.0
+
+
+# ------------------------------------------------------------------------------------------------
+# the observer process
+
+
+def observer_main(out_path: str) -> int:
+    from climb_core.ros_env import apply_local_dds_env
+
+    apply_local_dds_env()
+    import rclpy
+    from climb_msgs.msg import ControllerState, JointCommand, WholeBodyPlan
+    from diagnostic_msgs.msg import DiagnosticArray
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+    from nav_msgs.msg import Odometry
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+
+    from climb_core import fixtures
+    from climb_core.environment import build_environment
+    from climb_core.ladder import load_scenario
+    from climb_core.robot import load_robot
+    from controller_node.simple_plans import limb_transfer, plan_of
+    from msgs_py.contact import whole_body_plan_to_msg
+
+    robot = load_robot("g1")
+    env = build_environment(load_scenario("default"))
+    stance, q = fixtures.get("ladder_4_contacts", robot, env)
+    plan = plan_of(robot, env, stance, [limb_transfer(robot, env, stance, q, "right_hand", "rung_6", -0.15)])
+    reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+    rec = {"states": [], "answered": set(), "fsm": [], "lost": False, "z": [], "failures": 0, "diag": {},
+           "inactive_cmds": 0, "active": False, "grasp": "", "lifecycle": []}
+
+    rclpy.init()
+    node = Node("controller_test_observer")
+    plan_pub = node.create_publisher(WholeBodyPlan, "whole_body_plan", QoSProfile(depth=1))
+
+    def on_state(msg: JointState) -> None:
+        rec["states"].append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+
+    def on_command(msg: JointCommand) -> None:
+        if not rec["active"]:
+            rec["inactive_cmds"] += 1
+
+    def on_cstate(msg: ControllerState) -> None:
+        rec["answered"].add(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        if not rec["fsm"] or rec["fsm"][-1] != msg.fsm_state:
+            rec["fsm"].append(msg.fsm_state)
+        rec["failures"] = max(rec["failures"], msg.qp_failures)
+
+    def on_truth(msg: Odometry) -> None:
+        rec["z"].append(msg.pose.pose.position.z)
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        for s in msg.status:
+            if s.name == "sim_bridge/controller" and "lost" in s.message:
+                rec["lost"] = True
+            if s.name.startswith("sim_bridge") and "latched" in s.message and "right_hand" in s.message:
+                rec["grasp"] = "right_hand " + s.message.split(" latched on ")[1].split(" ")[0]
+            if s.name == "controller":
+                rec["diag"] = {kv.key: float(kv.value) for kv in s.values if kv.key.endswith("_ms")}
+
+    node.create_subscription(JointState, "joint_states", on_state, reliable)
+    node.create_subscription(JointCommand, "joint_command", on_command, reliable)
+    node.create_subscription(ControllerState, "controller/state", on_cstate, reliable)
+    node.create_subscription(Odometry, "sim/base_truth", on_truth, reliable)
+    node.create_subscription(DiagnosticArray, "diagnostics", on_diag, QoSProfile(depth=50))
+    get_state = node.create_client(GetState, "controller/get_state")
+    change = node.create_client(ChangeState, "controller/change_state")
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+
+    def call(client, request):
+        future = client.call_async(request)
+        executor.spin_until_future_complete(future, timeout_sec=10.0)
+        return future.result()
+
+    def lifecycle_state() -> str:
+        return call(get_state, GetState.Request()).current_state.label
+
+    try:
+        assert get_state.wait_for_service(timeout_sec=20.0) and change.wait_for_service(timeout_sec=5.0)
+        rec["lifecycle"].append(lifecycle_state())
+        call(change, ChangeState.Request(transition=Transition(id=Transition.TRANSITION_CONFIGURE)))
+        rec["lifecycle"].append(lifecycle_state())
+        deadline = time.monotonic() + 20.0  # the bridge starts once the controller is configured
+        while not rec["states"] and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        end = time.monotonic() + 0.2  # the first state is there: an inactive node must stay silent
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.02)
+        rec["active"] = True
+        call(change, ChangeState.Request(transition=Transition(id=Transition.TRANSITION_ACTIVATE)))
+        rec["lifecycle"].append(lifecycle_state())
+        sent = False
+        deadline = time.monotonic() + 120.0
+        while (not rec["states"] or rec["states"][-1] < TICKS * 5_000_000) and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+            if not sent and rec["answered"]:
+                plan_pub.publish(whole_body_plan_to_msg(plan))
+                sent = True
+        end = time.monotonic() + 0.5
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    result = {"lifecycle": rec["lifecycle"], "commands_while_inactive": rec["inactive_cmds"],
+              "n_states": len(rec["states"]), "answered": len(rec["answered"] & set(rec["states"])),
+              "last_stamp_ns": max(rec["states"]),
+              "lost": rec["lost"], "fsm_states": rec["fsm"], "max_qp_failures": rec["failures"],
+              "grasp_latched": rec["grasp"], "min_base_z": float(np.min(rec["z"])), "base_z0": float(rec["z"][0]),
+              "diag": rec["diag"]}
+    pathlib.Path(out_path).write_text(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(observer_main(sys.argv[1]))

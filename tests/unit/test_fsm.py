@@ -1,0 +1,168 @@
+"""Contact FSM: the transition table (config/fsm/default.yaml) and the state sequence the
+controller runs through for a plan, with the controller's QP accelerations integrated as the
+robot's motion (the paper's kinematic mode) and the F/T of a moving limb from a stiff spring
+where its target rung is (no simulator)."""
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import yaml
+
+from climb_core import fixtures
+from climb_core.errors import SpecError
+from controller_node.controller import Controller
+from controller_node.estimator import RobotState
+from controller_node.fsm import load_fsm_table, parse_fsm_table
+from controller_node.params import load_controller_params
+from controller_node.simple_plans import limb_transfer, plan_of
+
+
+@pytest.fixture(scope="module")
+def table_doc():
+    from climb_core.ros_env import project_root
+
+    with open(project_root() / "config" / "fsm" / "default.yaml") as stream:
+        return yaml.safe_load(stream)
+
+
+def test_default_table_routes_hands_and_feet_differently(table_doc):
+    table = parse_fsm_table(table_doc)
+    assert table.initial == "idle"
+    assert table.next_state("unload", "unloaded", "right_hand") == "open_gripper"
+    assert table.next_state("unload", "unloaded", "left_foot") == "transfer"
+    assert table.next_state("transfer", "contact", "left_hand") == "close_gripper"
+    assert table.next_state("transfer", "contact", "right_foot") == "load"
+    assert table.next_state("search", "exhausted", "right_foot") == "replan_needed"
+    # the wildcard row: a QP failure leads to the failure state from anywhere
+    for state in table.states:
+        assert table.next_state(state, "qp_failure", "left_hand") == "failure"
+    assert table.next_state("idle", "contact", "left_hand") is None
+
+
+@pytest.mark.parametrize("mutate, field", [
+    (lambda d: d.update(initial="nowhere"), "initial"),
+    (lambda d: d["transitions"].append({"from": "idle", "event": "plan", "to": "hold"}), "transitions[N]"),
+    (lambda d: d["transitions"].append({"from": "idle", "event": "x", "to": "moon"}), "transitions[N].to"),
+    (lambda d: d["transitions"].append({"from": "idle", "event": "x", "to": "hold", "limb": "tail"}),
+     "transitions[N].limb"),
+    (lambda d: d["states"].update(dance="not a state class"), "states.dance"),
+    (lambda d: d.update(typo=1), "typo"),
+    (lambda d: d.__setitem__("transitions", [r for r in d["transitions"] if r["event"] != "closed"]), "transitions"),
+])
+def test_bad_tables_are_rejected_naming_the_field(table_doc, mutate, field):
+    doc = copy.deepcopy(table_doc)
+    field = field.replace("N", str(len(doc["transitions"])))  # the appended row's index
+    mutate(doc)
+    with pytest.raises(SpecError) as info:
+        parse_fsm_table(doc, source="fsm")
+    assert info.value.field == f"fsm.{field}"
+
+
+def test_load_fsm_table_by_name_and_missing_file():
+    assert "transfer" in load_fsm_table("default").states
+    with pytest.raises(SpecError):
+        load_fsm_table("no_such_table")
+
+
+class KinematicLoop:
+    """Integrates the QP's qdd (perfect tracking); a moving hand feels a stiff spring when it
+    pushes past the target rung's surface along the approach (its wrist F/T)."""
+
+    def __init__(self, controller: Controller, q: np.ndarray, rung_offset: float = 0.0):
+        self.c = controller
+        self.q = q.copy()
+        self.v = np.zeros(controller.model.nv)
+        self.t = 0.0
+        self.offset = rung_offset  # [m] the real rung is this far along the approach from the plan
+        self.k_wall = 2000.0  # [N/m]
+        self.contact_plane = None  # (point, approach direction) of the hand's target
+
+    def ft(self) -> dict[str, np.ndarray]:
+        c = self.c
+        out = {s: np.zeros(6) for s in c.robot.config.ft_sensors}
+        if self.contact_plane is None or c.moving_limb != "right_hand":
+            return out
+        point, direction = self.contact_plane
+        data = c.model.createData()
+        pin.framesForwardKinematics(c.model, data, self.q)
+        fid = c.limb_frame_ids["right_hand"]
+        p = data.oMf[fid].act(c.limb_surface["right_hand"][:3, 3])
+        depth = float((p - point) @ direction)
+        if depth > 0.0:  # the rung pushes the hand back; the hand pushes the wrist back
+            sensor = c.limbs["right_hand"].ft_sensor
+            R = data.oMf[c._ft_frames[sensor]].rotation
+            out[sensor][:3] = R.T @ (-self.k_wall * depth * direction)
+        return out
+
+    def step(self):
+        state = RobotState(self.t, self.q.copy(), self.v.copy(), self.ft())
+        out = self.c.tick(state)
+        dt = self.c.params.control_period_s
+        qdd = self.c.last_result.qdd if out.status.qp_status == 0 else np.zeros_like(self.v)
+        self.v = self.v + qdd * dt
+        self.q = pin.integrate(self.c.model, self.q, self.v * dt)
+        self.t += dt
+        return out
+
+
+@pytest.fixture(scope="module")
+def ladder():
+    from climb_core.environment import build_environment
+    from climb_core.ladder import load_scenario
+    from climb_core.robot import load_robot
+
+    robot = load_robot("g1")
+    env = build_environment(load_scenario("default"))
+    stance, q = fixtures.get("ladder_4_contacts", robot, env)
+    transition = limb_transfer(robot, env, stance, q, "right_hand", "rung_6", -0.15)
+    return robot, env, stance, q, transition
+
+
+@pytest.mark.parametrize("offset, expect_early", [(-0.015, True), (0.015, False)])
+def test_hand_transfer_runs_remove_then_add_contact_states_and_stops_on_ft_contact(ladder, offset, expect_early):
+    robot, env, stance, q, transition = ladder
+    params = load_controller_params(**{"collision.enabled": False})
+    controller = Controller(robot, params, env)
+    loop = KinematicLoop(controller, q)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    controller.set_plan(plan_of(robot, env, stance, [transition]))
+    T_target = robot.T_world_surface("right_hand", transition.path[-1])
+    approach = T_target[:3, 2]
+    # the palm face meets the rung when the grasp centre reaches the rung axis (+ offset)
+    loop.contact_plane = (T_target[:3, 3] + offset * approach, approach)
+    states = []
+    for _ in range(1400):
+        out = loop.step()
+        if not states or states[-1] != out.status.fsm_state:
+            states.append(out.status.fsm_state)
+        if out.status.fsm_state in ("hold", "failure", "replan_needed"):
+            break
+    expected = ["unload", "open_gripper", "transfer"] + ([] if expect_early else ["search"]) + \
+        ["close_gripper", "load", "hold"]
+    assert states[states.index("unload"):] == expected
+    # the controller owns the contact set: released during the transfer, back at the end
+    assert set(controller.contacts) == {"left_foot", "right_foot", "left_hand", "right_hand"}
+    assert controller.holds["right_hand"].env_surface == "rung_6"
+    gripper = [(e.values["hand"], e.values["command"]) for e in controller.events_of("gripper")]
+    assert gripper == [("right_hand", "open"), ("right_hand", "position"), ("right_hand", "close")]
+    frozen = np.asarray(controller.events_of("limb_frozen")[0].values["position"])
+    stop = float((frozen - T_target[:3, 3]) @ approach)
+    assert stop == pytest.approx(offset, abs=0.006)  # [m] the hand stopped where the spring is
+
+
+def test_search_gives_up_and_asks_for_replanning_without_contact(ladder):
+    robot, env, stance, q, transition = ladder
+    params = load_controller_params(**{"collision.enabled": False, "guarded.search_distance": 0.02})
+    controller = Controller(robot, params, env)
+    loop = KinematicLoop(controller, q)  # no spring: the rung is not where planned
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    controller.set_plan(plan_of(robot, env, stance, [transition]))
+    for _ in range(1400):
+        out = loop.step()
+        if out.status.fsm_state in ("hold", "replan_needed", "failure"):
+            break
+    assert out.status.fsm_state == "replan_needed" and out.status.replan_needed
+    assert "right_hand" not in controller.contacts  # never added without a contact
