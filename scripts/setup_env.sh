@@ -58,7 +58,7 @@ fi
 pkgs_hash=$(hash_of src/*/setup.py src/*/setup.cfg)
 if [ "$(cat "$stamps/packages" 2>/dev/null)" != "$pkgs_hash" ]; then
   echo "[setup] installing the project's Python packages (editable)"
-  for p in climb_core msgs_py sim_bridge controller_node planner_node; do
+  for p in climb_core msgs_py sim_bridge controller_node planner_node climb_coordinator; do
     pipq install --no-deps --no-build-isolation -e "src/$p"
   done
   echo "$pkgs_hash" > "$stamps/packages"

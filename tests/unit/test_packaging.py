@@ -5,7 +5,7 @@ import sys
 import xml.etree.ElementTree as ET
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
-PYTHON_PACKAGES = ["climb_core", "msgs_py", "sim_bridge", "controller_node", "planner_node"]
+PYTHON_PACKAGES = ["climb_core", "msgs_py", "sim_bridge", "controller_node", "planner_node", "climb_coordinator"]
 
 
 def test_every_package_is_an_ament_package():

@@ -1,0 +1,1 @@
+"""Climb orchestration: plan a climb, execute it against the simulator, record it."""
