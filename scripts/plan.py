@@ -1,0 +1,118 @@
+#!/usr/bin/env python3
+"""Plan a ladder climb (motion primitive adaptation + multi-step search), print the JSON summary.
+
+    scripts/plan.py --ladder default --robot g1 --steps 2 [--timeout 120] [--seed 0] [--out plan.json]
+
+--ladder is a name in config/ladders/ or a ladder spec file (shared/specs/ladder_spec.md). The
+last line on standard output is one JSON object (ladder_spec.md "Results"); a malformed spec or
+option prints `error: <field>: <rule>` on standard error and exits with code 2; a climb that could
+not be planned exits with 1 (the summary's failure_reason names the constraint that stopped it).
+"""
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--ladder", default="default", help="ladder spec: name in config/ladders/ or a YAML file")
+    ap.add_argument("--robot", default="g1", help="robot config name (config/robots/<name>.yaml)")
+    ap.add_argument("--steps", type=int, default=2, help="climbing cycles after the mount (feet end on rung N)")
+    ap.add_argument("--timeout", type=float, default=None, help="planning wall-time limit [s] (default: config)")
+    ap.add_argument("--seed", type=int, default=None, help="random seed (default: config)")
+    ap.add_argument("--strategy", default=None, help="primitive library (default: config, e.g. forward)")
+    ap.add_argument("--start", default=None, help="start stance fixture (default: the library's, standing)")
+    ap.add_argument("--out", default=None, help="write the whole-body plan (JSON) to this file")
+    ap.add_argument("--verify", action="store_true", help="re-check the plan at 4x the discretisation")
+    return ap
+
+
+def summary_base(args: argparse.Namespace) -> dict:
+    return {"success": False, "failure_reason": "", "robot": args.robot, "ladder": args.ladder,
+            "rungs_requested": args.steps, "rungs_reached": 0, "plan_time_s": 0.0, "n_stances": 0,
+            "sim_time_s": 0.0, "fell": False, "control_tick_ms": None, "bag": ""}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from climb_core.errors import ClimbError, SpecError
+    from planner_node.plan_io import summary_line
+
+    summary = summary_base(args)
+    t0 = time.perf_counter()
+    try:
+        if args.steps < 0:
+            raise SpecError("steps", f"must be >= 0, got {args.steps}")
+        if args.timeout is not None and not args.timeout > 0:
+            raise SpecError("timeout", f"must be > 0 [s], got {args.timeout}")
+        result, extra = run(args)
+    except SpecError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        summary["failure_reason"] = f"spec: {exc}"
+        print(summary_line(summary))
+        return 2
+    except ClimbError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        summary["failure_reason"] = str(exc)
+        summary["plan_time_s"] = round(time.perf_counter() - t0, 3)
+        print(summary_line(summary))
+        return 1
+    s = result.summary()
+    summary.update({k: s[k] for k in ("success", "failure_reason", "plan_time_s", "n_stances", "rungs_reached")})
+    summary.update({k: v for k, v in s.items() if k not in summary})
+    summary.update(extra)
+    print(summary_line(summary))
+    return 0 if result.success else 1
+
+
+def run(args: argparse.Namespace):
+    import dataclasses
+
+    from climb_core import fixtures
+    from climb_core.environment import build_environment
+    from climb_core.ladder import load_scenario
+    from climb_core.robot import load_robot
+    from planner_node import plan_io
+    from planner_node.climb_planner import plan_climb
+    from planner_node.primitives import load_library
+    from planner_node.settings import load_settings
+
+    settings = load_settings()
+    if args.strategy:
+        settings = dataclasses.replace(settings, planning=dataclasses.replace(settings.planning,
+                                                                              strategy=args.strategy))
+    scenario = load_scenario(args.ladder)
+    env = build_environment(scenario)
+    robot = load_robot(args.robot)
+    library = load_library(robot.config.name, settings.planning.strategy, settings.planning.primitives_dir,
+                           nq=robot.model.nq)
+    start = None
+    if args.start:
+        stance, q = fixtures.get(args.start, robot, env)
+        start = (q, stance)
+    result = plan_climb(robot, env, args.steps, library=library, settings=settings, start=start,
+                        seed=args.seed, timeout_s=args.timeout)
+    extra: dict = {"strategy": settings.planning.strategy}
+    if args.out and result.plan is not None:
+        path = plan_io.save_plan(args.out, result.plan, {
+            "ladder": args.ladder, "robot": args.robot, "steps": args.steps, "seed": args.seed,
+            "summary": result.summary(), "subtasks": result.subtasks})
+        extra["plan_file"] = str(path)
+    if args.verify and result.plan is not None:
+        from planner_node.verify import verify_plan
+
+        q_start = start[0] if start else fixtures.get(library.initial_fixture, robot, env)[1]
+        rep = verify_plan(robot, env, result.plan, q_start=q_start, refine=4,
+                          goal_feet_rung=args.steps if result.success and not args.start else None)
+        extra["verified"] = rep.ok
+        extra["verify"] = rep.summary()
+    return result, extra
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,149 @@
+#!/usr/bin/env python3
+"""Run a ladder grid (default ../shared/bench/ladder_grid.yaml, the paper's 336 ladders): plan every
+ladder, write a CSV (one row per ladder, with the constraint that stopped each failure) and heat
+maps (success like the paper's Fig. 9, and planning time).
+
+    scripts/sweep.py [--grid FILE] [--robot g1] [--workers 2] [--timeout 120] [--steps 2]
+                     [--ladders 70/0.20,90/0.35] [--out-dir build/sweep] [--backend local|ray]
+
+Workers are pluggable: local processes by default; ``--backend ray`` sends the same tasks to an
+existing Ray cluster (``--ray-address``, default: the RAY_ADDRESS variable or a local instance).
+The last line on standard output is a JSON summary (success rate, median planning time, failures
+by category, the CSV and PNG paths).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+DEFAULT_GRID = ROOT.parent / "shared" / "bench" / "ladder_grid.yaml"
+
+
+def parse_ladders(text: str) -> list[tuple[float, float]]:
+    from climb_core.errors import SpecError
+
+    out = []
+    for item in filter(None, (x.strip() for x in text.split(","))):
+        try:
+            inc, sp = item.split("/")
+            out.append((float(inc), float(sp)))
+        except ValueError:
+            raise SpecError("ladders", f"expected inclination/spacing pairs like 75/0.25, got {item!r}") from None
+    return out
+
+
+class Progress:
+    """A one-line text progress bar on standard error."""
+
+    def __init__(self, total: int, stream=sys.stderr, width: int = 30):
+        self.total, self.stream, self.width = total, stream, width
+        self.done = self.ok = 0
+        self.t0 = time.monotonic()
+
+    def update(self, row: dict) -> None:
+        self.done += 1
+        self.ok += bool(row.get("success"))
+        frac = self.done / max(self.total, 1)
+        elapsed = time.monotonic() - self.t0
+        eta = elapsed / self.done * (self.total - self.done) if self.done else 0.0
+        bar = "#" * int(frac * self.width) + "-" * (self.width - int(frac * self.width))
+        self.stream.write(f"\r[{bar}] {self.done}/{self.total} ok {self.ok} "
+                          f"({100 * self.ok / self.done:.0f} %) eta {eta / 60:.1f} min   ")
+        if self.done == self.total:
+            self.stream.write("\n")
+        self.stream.flush()
+
+
+def run_local(tasks, workers: int, progress: Progress) -> list[dict]:
+    from planner_node.sweep import run_task
+
+    rows = []
+    if workers <= 1:
+        for t in tasks:
+            rows.append(run_task(t))
+            progress.update(rows[-1])
+        return rows
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+        futures = [pool.submit(run_task, t) for t in tasks]
+        for fut in cf.as_completed(futures):
+            rows.append(fut.result())
+            progress.update(rows[-1])
+    return rows
+
+
+def run_ray(tasks, address: str | None, progress: Progress) -> list[dict]:
+    try:
+        import ray
+    except ImportError:
+        from climb_core.errors import SpecError
+
+        raise SpecError("backend", "ray is not installed: install it (pip install 'ray[default]') to use "
+                                   "--backend ray, or use the default local backend") from None
+    from planner_node.sweep import run_task
+
+    ray.init(address=address or None, ignore_reinit_error=True, log_to_driver=False,
+             runtime_env={"env_vars": {"CLIMB_ROOT": str(ROOT)}})
+    remote = ray.remote(run_task)
+    pending = [remote.remote(t) for t in tasks]
+    rows = []
+    while pending:
+        done, pending = ray.wait(pending, num_returns=1)
+        rows.append(ray.get(done[0]))
+        progress.update(rows[-1])
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--grid", default=str(DEFAULT_GRID))
+    ap.add_argument("--robot", default="g1")
+    ap.add_argument("--strategy", default="", help="primitive library (default: config/planner.yaml)")
+    ap.add_argument("--steps", type=int, default=None, help="default: the grid file's")
+    ap.add_argument("--timeout", type=float, default=None, help="[s] per ladder; default: the grid file's")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=2, help="local worker processes")
+    ap.add_argument("--ladders", default="", help="only these grid points: 70/0.20,90/0.35,...")
+    ap.add_argument("--out-dir", default=str(ROOT / "build" / "sweep"))
+    ap.add_argument("--name", default="", help="file stem (default: <robot>_<strategy or default>)")
+    ap.add_argument("--backend", choices=("local", "ray"), default="local")
+    ap.add_argument("--ray-address", default=None)
+    args = ap.parse_args(argv)
+
+    from climb_core.errors import SpecError
+    from planner_node import sweep
+
+    try:
+        grid = sweep.load_grid(args.grid)
+        select = parse_ladders(args.ladders) if args.ladders else None
+        tasks = sweep.make_tasks(grid, args.robot, args.steps, args.timeout, args.seed, args.strategy, select)
+        if args.workers < 1:
+            raise SpecError("workers", f"must be >= 1, got {args.workers}")
+        progress = Progress(len(tasks))
+        t0 = time.monotonic()
+        rows = (run_ray(tasks, args.ray_address, progress) if args.backend == "ray"
+                else run_local(tasks, args.workers, progress))
+    except SpecError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        print(json.dumps({"success": False, "failure_reason": f"spec: {exc}"}))
+        return 2
+    stem = args.name or f"{args.robot}_{args.strategy or 'default'}"
+    out = pathlib.Path(args.out_dir)
+    csv_path = sweep.write_csv(rows, out / f"{stem}.csv")
+    png_path = sweep.heat_maps(rows, out / f"{stem}.png",
+                               title=f"{args.robot}: {tasks[0].steps}-step climbs, {tasks[0].timeout_s:g} s cutoff")
+    stats = sweep.statistics(rows)
+    stats.update(csv=str(csv_path), png=str(png_path), wall_time_s=round(time.monotonic() - t0, 1),
+                 robot=args.robot, backend=args.backend, workers=args.workers)
+    print(json.dumps(stats))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,284 @@
+"""Plan an N-step ladder climb: primitive sequence + MSP-Recurse over Adapt-Primitive.
+
+"N-step climb" (the grid file's definition, shared/bench/ladder_grid.yaml): from standing on the
+ground, mount (approach steps if needed, then both hands on a rung), then N full climbing cycles
+of 7 primitives each; every cycle moves both feet one rung up, so an N-step climb ends with both
+feet on rung N (hands on the rung nearest the designed hand height above them). From a state
+already on the ladder (partially known ladders: plan k cycles now, replan later from the reached
+state), the sequence starts with the cycles.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from climb_core import feasibility
+from climb_core.contact import FEET, HANDS, ContactPlan, Stance, WholeBodyPlan
+from climb_core.errors import SpecError
+
+from . import msp
+from .adapt import AdaptContext, ClimbState, Segment, adapt_primitive, limb_rung
+from .primitives import (Primitive, PrimitiveLibrary, load_library, load_variants, rank_variants,
+                         reference_key)
+from .settings import PlannerSettings, load_settings
+
+
+@dataclass
+class ClimbPlanResult:
+    success: bool
+    plan: WholeBodyPlan | None  # the plan (on failure: the best partial plan, or None)
+    failure_constraint: str  # "" on success; reach:<limb> | torque_limit:<joint> | collision:<a>|<b> | friction | time_limit ...
+    failure_detail: str
+    plan_time_s: float  # [s] wall time
+    subtasks: list[str]  # primitive names of the sequence searched
+    report: msp.SearchReport | None
+    final_state: ClimbState | None
+    stats: dict = field(default_factory=dict)
+    segments: list[Segment] = field(default_factory=list)
+
+    @property
+    def n_stances(self) -> int:
+        """Number of stances of the plan: the initial one plus one per transition."""
+        return 0 if self.plan is None else 1 + len(self.plan.transitions)
+
+    def summary(self) -> dict:
+        feet_rungs = []
+        if self.final_state is not None:
+            feet_rungs = [limb_rung(self.final_state.stance, f) or 0 for f in FEET]
+        return {
+            "success": self.success,
+            "failure_reason": "" if self.success else f"{self.failure_constraint}: {self.failure_detail}",
+            "failure_constraint": "" if self.success else self.failure_constraint,
+            "plan_time_s": round(self.plan_time_s, 3),
+            "n_stances": self.n_stances,
+            "n_transitions": 0 if self.plan is None else len(self.plan.transitions),
+            "rungs_reached": int(min(feet_rungs)) if feet_rungs else 0,
+            "attempts": self.report.n_attempts if self.report else 0,
+            "backtracks": self.report.n_backtracks if self.report else 0,
+            "duration_s": round(plan_duration(self.plan), 2) if self.plan is not None else 0.0,
+        }
+
+
+def plan_duration(plan: WholeBodyPlan) -> float:
+    return float(sum(t.times[-1] for t in plan.transitions if len(t.times)))
+
+
+def subtask_sequence(library: PrimitiveLibrary, stance: Stance, steps: int) -> list[Primitive]:
+    """Primitives to go from ``stance`` through ``steps`` climbing cycles."""
+    if steps < 0:
+        raise SpecError("steps", f"must be >= 0, got {steps}")
+    feet = [limb_rung(stance, f) for f in FEET]
+    hands = [limb_rung(stance, h) for h in HANDS]
+    if any(r is None for r in feet):
+        raise SpecError("start.stance", "both feet must be in contact to start a climb")
+    seq: list[Primitive] = []
+    on_ground = all(r == 0 for r in feet)
+    hands_on = all(r is not None and r > 0 for r in hands)
+    if on_ground and not hands_on:
+        if any(r is not None for r in hands):
+            raise SpecError("start.stance", "start with both hands free or both on rungs")
+        seq += library.sequence("approach") if "approach" in library.sequences else []
+        seq += library.sequence("mount")
+    elif not hands_on:
+        raise SpecError("start.stance", "on the ladder both hands must hold a rung")
+    if min(feet) != max(feet):
+        raise SpecError("start.stance", "both feet must be on the same rung (a cycle boundary)")
+    for k in range(steps):
+        if on_ground and k == 0 and "first_cycle" in library.sequences:
+            seq += library.sequence("first_cycle")
+        else:
+            seq += library.sequence("cycle")
+    return seq
+
+
+def plan_climb(robot: Any, env: Any, steps: int, *, library: PrimitiveLibrary | None = None,
+               settings: PlannerSettings | None = None, start: tuple[np.ndarray, Stance] | None = None,
+               seed: int | None = None, timeout_s: float | None = None,
+               feasibility_cfg: feasibility.FeasibilityConfig | None = None,
+               on_progress: Callable[[int, int, int], None] | None = None) -> ClimbPlanResult:
+    """Plan ``steps`` climbing cycles from ``start`` (default: the library's initial fixture)."""
+    t0 = time.perf_counter()
+    settings = settings or load_settings()
+    p = settings.planning
+    if library is None:
+        variants = load_variants(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
+        lad = env.scenario.ladder
+        variants = rank_variants(variants, float(lad.inclination_deg), float(lad.rung_spacing))
+        library = variants[0]
+    else:
+        variants = [library]
+    if tuple(library.joint_names) != tuple(robot.joint_names):
+        raise SpecError("primitives.joint_names", f"library {library.robot}/{library.strategy} was made for "
+                                                  f"other joints than robot {robot.config.name}")
+    if start is None:
+        from climb_core import fixtures
+
+        stance0, q0 = fixtures.get(library.initial_fixture, robot, env)
+    else:
+        q0, stance0 = start
+    ctx = AdaptContext(robot, env, library, settings, feasibility_cfg)
+    # one context per library variant (designed on other reference ladders), sharing the stats
+    contexts = [ctx]
+    for lib in variants[1:]:
+        c = AdaptContext(robot, env, lib, settings, feasibility_cfg)
+        c.stats = ctx.stats
+        contexts.append(c)
+    subtasks = subtask_sequence(library, stance0, steps)
+    state0 = ClimbState(np.asarray(q0, dtype=float).copy(), stance0)
+    per_variant = max(1, p.attempts_per_variant)
+
+    def attempt(prim: Primitive, state: ClimbState, j: int, rng: np.random.Generator):
+        # the nearest reference's primitive first; later attempts the next nearest references'
+        k = min(j // per_variant, len(contexts) - 1)
+        c = contexts[k]
+        return adapt_primitive(c, c.library.primitives.get(prim.name, prim), state, j - k * per_variant, rng)
+
+    report = msp.multi_step_search(state0, subtasks, attempt, m=p.attempts_per_subtask,
+                                   seed=p.seed if seed is None else seed,
+                                   time_limit_s=p.timeout_s if timeout_s is None else timeout_s,
+                                   on_progress=on_progress)
+    segments: list[Segment] = list(report.segments)
+    transitions = [s.transition for s in segments if s.transition is not None]
+    plan = WholeBodyPlan(robot=robot.config.name, environment=env.name, joint_names=list(robot.joint_names),
+                         initial_stance=stance0, transitions=transitions)
+    elapsed = time.perf_counter() - t0
+    stats = ctx.stats.as_dict()
+    stats["search_s"] = report.elapsed_s
+    stats["library_references"] = [list(reference_key(c.library)) for c in contexts]
+    return ClimbPlanResult(success=report.success, plan=plan if (report.success or transitions) else None,
+                           failure_constraint=report.failure_constraint, failure_detail=report.failure_detail,
+                           plan_time_s=elapsed, subtasks=[s.name for s in subtasks], report=report,
+                           final_state=report.final_state, stats=stats, segments=segments)
+
+
+
+
+# --------------------------------------------------------------------------------------------
+# a contact plan (stance sequence from the contact search) -> whole-body plan
+
+
+@dataclass(frozen=True)
+class ContactStep:
+    """One stance change of a contact plan, adapted with a library primitive."""
+
+    name: str
+    kind: str  # limb | com | release
+    primitive: Primitive | None
+    limb: str
+    hold: Any  # the new hold (limb), None otherwise
+    q_end: np.ndarray  # the contact plan's transition configuration of the next stance
+
+
+def _same_hold(a, b) -> bool:
+    if a is None or b is None:
+        return a is b
+    return a.env_surface == b.env_surface and np.allclose(a.centre, b.centre, atol=1e-4)
+
+
+def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[ContactStep]:
+    """Sub-tasks for a contact plan: one per consecutive stance pair (SpecError when a pair
+    changes more than one hold, or no library primitive fits)."""
+    import dataclasses as dc
+
+    from climb_core.contact import LIMBS
+
+    if len(plan.stances) < 2 or len(plan.transition_configurations) != len(plan.stances):
+        raise SpecError("contact_plan", "needs >= 2 stances and one transition configuration per stance")
+    steps = []
+    for i, (a, b) in enumerate(zip(plan.stances[:-1], plan.stances[1:])):
+        field_ = f"contact_plan.stances[{i + 1}]"
+        changed = [limb for limb in LIMBS if not _same_hold(a.hold(limb), b.hold(limb))]
+        q_end = np.asarray(plan.transition_configurations[i + 1], dtype=float)
+        if not changed:
+            com = [p for p in library.primitives.values() if p.kind == "com"]
+            if not com:
+                raise SpecError(field_, "the library has no CoM primitive")
+            steps.append(ContactStep(f"com_{i}", "com", dc.replace(com[0], end_unload=()), "", None, q_end))
+            continue
+        if len(changed) > 1:
+            raise SpecError(field_, f"one hold may change per transition, got {changed}")
+        limb = changed[0]
+        new = b.hold(limb)
+        if new is None:
+            steps.append(ContactStep(f"release_{limb}_{i}", "release", None, limb, None, q_end))
+            continue
+        surface = "ground" if new.env_surface == "ground" else "rung"
+        want_type = "mount" if a.hold(limb) is None and limb in HANDS else None
+        cands = [p for p in library.primitives.values() if p.kind == "limb" and p.limb == limb
+                 and p.target.surface == surface and (want_type is None or p.type == want_type)]
+        if not cands:
+            cands = [p for p in library.primitives.values() if p.kind == "limb" and p.limb == limb]
+        if not cands:
+            raise SpecError(field_, f"no primitive in library {library.robot}/{library.strategy} moves {limb}")
+        prim = dc.replace(cands[-1], end_unload=(limb,))
+        steps.append(ContactStep(f"{prim.name}_{i}", "limb", prim, limb, new, q_end))
+    return steps
+
+
+def _adapt_contact_step(ctx: AdaptContext, step: ContactStep, state: ClimbState, attempt: int,
+                        rng: np.random.Generator):
+    from . import adapt as A
+
+    if step.kind == "limb":
+        out = A._adapt_limb(ctx, step.primitive, state, attempt, rng, hold=step.hold, q_end_seed=step.q_end)
+    elif step.kind == "com":
+        out = A._adapt_com(ctx, step.primitive, state, attempt, rng, q_end_seed=step.q_end)
+    else:  # release: the limb leaves its hold, the others keep theirs
+        old = state.stance.hold(step.limb)
+        stance = state.stance.without(step.limb)
+        q_bar = step.q_end if attempt == 0 else A._perturb(ctx, step.q_end, attempt, rng)
+        proj = A.project(ctx, q_bar, stance, rng)
+        if proj.q is None:
+            return msp.AttemptFailure(proj.failure, f"{step.name}: end configuration")
+        path, _, failure = A.build_path(ctx, [state.q, proj.q], stance, step.limb, [old])
+        if path is None:
+            return msp.AttemptFailure(failure, f"{step.name}: path")
+        from climb_core.contact import Transition
+
+        tp = ctx.settings.timing
+        from . import interpolation as interp
+
+        times = interp.time_parameterize(ctx.robot.model, path, tp.max_joint_speed, tp.max_base_speed,
+                                         tp.max_base_angular_speed, tp.min_transition_duration, tp.ramp_fraction)
+        tr = Transition(primitive="release", moving_limb=step.limb, stance=stance, target_stance=stance,
+                        times=times, path=np.array(path))
+        return msp.Step(ClimbState(proj.q, stance), Segment(step.name, tr, None, attempt))
+    if isinstance(out, msp.Step):
+        seg = out.segment
+        return msp.Step(out.state, Segment(step.name, seg.transition, seg.hold, seg.attempt))
+    return out
+
+
+def plan_from_contact_plan(robot: Any, env: Any, contact_plan: ContactPlan, *,
+                           library: PrimitiveLibrary | None = None, settings: PlannerSettings | None = None,
+                           seed: int | None = None, timeout_s: float | None = None,
+                           feasibility_cfg: feasibility.FeasibilityConfig | None = None,
+                           on_progress: Callable[[int, int, int], None] | None = None) -> ClimbPlanResult:
+    """Whole-body paths for a contact plan's stance sequence (each transition adapted from the
+    library primitive of that limb, ending at the plan's hold, seeded by its configuration)."""
+    t0 = time.perf_counter()
+    settings = settings or load_settings()
+    p = settings.planning
+    if library is None:
+        library = load_library(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
+    if list(contact_plan.joint_names) and list(contact_plan.joint_names) != list(robot.joint_names):
+        raise SpecError("contact_plan.joint_names", f"must be the joints of robot {robot.config.name}")
+    steps = contact_plan_steps(library, contact_plan)
+    ctx = AdaptContext(robot, env, library, settings, feasibility_cfg)
+    state0 = ClimbState(np.asarray(contact_plan.transition_configurations[0], dtype=float), contact_plan.stances[0])
+    report = msp.multi_step_search(state0, steps, lambda st, s, j, rng: _adapt_contact_step(ctx, st, s, j, rng),
+                                   m=p.attempts_per_subtask, seed=p.seed if seed is None else seed,
+                                   time_limit_s=p.timeout_s if timeout_s is None else timeout_s,
+                                   on_progress=on_progress)
+    segments = list(report.segments)
+    transitions = [s.transition for s in segments if s.transition is not None]
+    plan = WholeBodyPlan(robot=robot.config.name, environment=env.name, joint_names=list(robot.joint_names),
+                         initial_stance=contact_plan.stances[0], transitions=transitions)
+    stats = ctx.stats.as_dict()
+    return ClimbPlanResult(success=report.success, plan=plan if (report.success or transitions) else None,
+                           failure_constraint=report.failure_constraint, failure_detail=report.failure_detail,
+                           plan_time_s=time.perf_counter() - t0, subtasks=[s.name for s in steps], report=report,
+                           final_state=report.final_state, stats=stats, segments=segments)

@@ -1,0 +1,164 @@
+"""Planner parameters: config/planner.yaml (ROS 2 params layout, node ``primitive_adaptation``).
+
+One frozen dataclass per concern, parsed once with :mod:`climb_core.params` (units, ranges,
+unknown keys refused) and handed to the library; the node declares the same parameters. The
+feasibility check's own settings stay in config/feasibility.yaml (frozen for benchmarks); the
+planner only adds *planning margins* on top of them (``planning``), so that what it plans passes
+the frozen check with room to spare.
+"""
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+from dataclasses import dataclass
+
+from climb_core.params import group, load_params, param
+
+NODE_NAME = "primitive_adaptation"
+
+
+@dataclass(frozen=True)
+class PCIKParams:
+    max_iterations: int = param(40, unit="-", min=1, description="SQP iterations of one physics-constrained IK solve")
+    step_limit: float = param(0.15, unit="rad", min=1.0e-3, description=(
+        "trust region: bound on each joint's change per iteration (base: same number in m and rad)"))
+    position_tolerance: float = param(2.0e-4, unit="m", min=0.0, description="contact position error at convergence")
+    angle_tolerance: float = param(2.0e-3, unit="rad", min=0.0, description="contact orientation error at convergence")
+    step_tolerance: float = param(1.0e-4, unit="rad", min=0.0, description="converged when no joint moves more than this")
+    orientation_weight: float = param(0.3, unit="m/rad", min=0.0, description="angular rows vs position rows")
+    posture_weight: float = param(1.0, unit="1/rad^2", min=0.0, description="cost of joint distance to the target configuration")
+    base_position_weight: float = param(10.0, unit="1/m^2", min=0.0, description="cost of base distance to the target configuration")
+    base_orientation_weight: float = param(10.0, unit="1/rad^2", min=0.0, description="cost of base rotation away from the target")
+    damping: float = param(1.0e-3, unit="-", min=1.0e-9, description="Levenberg damping of |dq|^2")
+    floating_weight: float = param(10.0, unit="1/m^2", min=0.0, description=(
+        "cost of a floating contact's distance to its preferred position"))
+    com_weight: float = param(100.0, unit="1/m^2", min=0.0, description="cost of the CoM's distance to a CoM target (x, y)")
+    cue_weight: float = param(1.0e5, unit="-", min=0.0, description=(
+        "penalty on the slack of a soft (design cue) contact: the way-point poses of make_primitives"))
+    contact_slack_weight: float = param(1.0e6, unit="-", min=1.0, description="penalty on contact constraint slack")
+    equilibrium_slack_weight: float = param(10.0, unit="1/N^2", min=1.0e-9, description=(
+        "penalty on the base wrench imbalance slack (static equilibrium)"))
+    equilibrium_tolerance: float = param(0.5, unit="N", min=0.0, description=(
+        "base wrench imbalance left in the linearised problem below which the core check is tried"))
+    torque_slack_weight: float = param(1.0e1, unit="1/(N m)^2", min=1.0e-9, description="penalty on torque-limit excess")
+    collision_slack_weight: float = param(1.0e6, unit="1/m^2", min=1.0, description="penalty on collision-margin violation")
+    force_regularization: float = param(1.0e-5, unit="1/N^2", min=1.0e-12, description=(
+        "cost of 0.5 |f|^2 (spreads the forces: far fewer active constraints in the QP)"))
+    collision_activation: float = param(0.03, unit="m", min=0.0, description=(
+        "pairs closer than this enter the QP as linearised distance constraints"))
+    collision_margin: float = param(0.008, unit="m", min=0.0, description="signed distance the IK keeps from obstacles")
+    self_collision_margin: float = param(0.003, unit="m", min=0.0, description=(
+        "signed distance the IK keeps between the robot's own links"))
+    torque_limit_fraction: float = param(0.9, unit="-", min=0.1, max=1.0, description=(
+        "share of the effort limits the IK may use (room for the interpolation between solutions)"))
+    grip_limit_fraction: float = param(0.9, unit="-", min=0.1, max=1.0, description="share of the grip strength the IK may use")
+    friction_margin: float = param(0.9, unit="-", min=0.1, max=1.0, description="the IK's friction cones use margin * mu")
+    min_normal_force: float = param(2.0, unit="N", min=0.0, description="least normal force per regular unilateral contact point")
+    joint_limit_margin: float = param(0.01, unit="rad", min=0.0, description="kept away from the position limits")
+
+
+@dataclass(frozen=True)
+class ProjectionParams:
+    restarts: int = param(10, unit="-", min=0, description="Algorithm 1: perturbed restarts n")
+    perturbation_joint: float = param(0.05, unit="rad", min=0.0, description=(
+        "std dev of the joint perturbation, multiplied by the restart index"))
+    perturbation_base: float = param(0.01, unit="m", min=0.0, description=(
+        "std dev of the base position perturbation, multiplied by the restart index"))
+    retract: bool = param(True, unit="-", description="retract colliding projections with the physics-constrained IK")
+    repair_equilibrium: bool = param(True, unit="-", description=(
+        "when a projection is collision-free but not in equilibrium, try the physics-constrained IK"))
+    repair_attempts: int = param(3, unit="-", min=0, description=(
+        "physics-constrained IK repairs (retraction / equilibrium) per projection, at most"))
+    retract_tries: int = param(2, unit="-", min=1, description=(
+        "retraction of a path configuration: from it, then from perturbed copies (this many tries in all)"))
+
+
+@dataclass(frozen=True)
+class SamplingParams:
+    lateral_sigma: float = param(0.02, unit="m", min=0.0, description=(
+        "std dev of a sampled hold's position along the rung around the seed hold (attempt > 0)"))
+    lateral_max: float = param(0.05, unit="m", min=0.0, description="bound on that offset")
+    ground_sigma: float = param(0.02, unit="m", min=0.0, description="std dev of a sampled ground foot position (x, y)")
+    alternative_rungs: bool = param(True, unit="-", description=(
+        "attempts 3 and 4 of a hand primitive try the rung above / below the seed rung"))
+
+
+@dataclass(frozen=True)
+class InterpolationParams:
+    max_step: float = param(0.04, unit="rad", min=1.0e-4, description=(
+        "planner discretisation: largest joint change between checked configurations"))
+    base_scale: float = param(0.5, unit="m/rad", min=1.0e-3, description="base metres counted as radians / base_scale")
+    max_depth: int = param(10, unit="-", min=1, description="recursion depth of the projected bisection")
+    exclusion_distance_hand: float = param(0.06, unit="m", min=0.0, description=(
+        "a moving hand closer than this to the hold it leaves / reaches may touch that surface (release, approach)"))
+    exclusion_distance_foot: float = param(0.03, unit="m", min=0.0, description=(
+        "a moving foot closer than this to the hold it leaves / reaches may touch that surface"))
+    max_repairs: int = param(4, unit="-", min=0, description=(
+        "colliding path sections retracted (a new milestone each) before an adaptation attempt fails"))
+
+
+@dataclass(frozen=True)
+class TimingParams:
+    max_joint_speed: float = param(0.4, unit="rad/s", min=1.0e-3, description="fastest joint motion in the plan")
+    max_base_speed: float = param(0.08, unit="m/s", min=1.0e-3, description="fastest base translation")
+    max_base_angular_speed: float = param(0.3, unit="rad/s", min=1.0e-3, description="fastest base rotation")
+    ramp_fraction: float = param(0.15, unit="-", min=0.0, max=0.5, description=(
+        "share of a transition slowed down at its start and end (up to 2x slower)"))
+    min_transition_duration: float = param(1.0, unit="s", min=0.0, description="least duration of one transition")
+
+
+@dataclass(frozen=True)
+class PlanningParams:
+    robot: str = param("g1", unit="-", description="robot config name (config/robots/<name>.yaml)")
+    strategy: str = param("forward", unit="-", description="primitive library: config/primitives/<robot>/<strategy>/")
+    primitives_dir: str = param("config/primitives", unit="-", description="primitive libraries (relative to the project root)")
+    attempts_per_subtask: int = param(5, unit="-", min=1, description="MSP-Recurse: adaptation attempts m per sub-task")
+    attempts_per_variant: int = param(2, unit="-", min=1, description=(
+        "attempts of a sub-task with one library variant before the next nearest reference ladder's"))
+    timeout_s: float = param(120.0, unit="s", min=0.1, description="wall-time limit of one multi-step search")
+    seed: int = param(0, unit="-", min=0, description="random seed of the hold sampling and IK perturbations")
+    collision_margin: float = param(0.005, unit="m", description=(
+        "collision margin of the planner's own checks (the frozen check uses config/feasibility.yaml)"))
+    self_collision_margin: float = param(0.001, unit="m", description=(
+        "self-collision margin of the planner's own checks (links of one robot, e.g. pelvis vs hip at deep flexion)"))
+    torque_limit_fraction: float = param(0.95, unit="-", min=0.1, max=1.0, description=(
+        "share of the effort limits the planner's own checks allow"))
+    grip_limit_fraction: float = param(0.95, unit="-", min=0.1, max=1.0, description=(
+        "share of the grip strength the planner's own checks allow"))
+    friction_margin: float = param(0.95, unit="-", min=0.1, max=1.0, description="planner's own checks use margin * mu")
+    min_normal_force: float = param(3.0, unit="N", min=0.0, description=(
+        "planner's own checks: least normal force per unilateral contact point (keeps the CoP off the sole edges)"))
+    approach_tolerance: float = param(0.03, unit="m", min=0.0, description=(
+        "a foot already this close to its approach position on the ground does not step"))
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    planning: PlanningParams = group(PlanningParams, "search and planning margins")
+    pcik: PCIKParams = group(PCIKParams, "physics-constrained IK")
+    projection: ProjectionParams = group(ProjectionParams, "Algorithm 1 (projection onto a stance)")
+    sampling: SamplingParams = group(SamplingParams, "ending-stance sampling around the seed hold")
+    interpolation: InterpolationParams = group(InterpolationParams, "milestone interpolation and discretisation")
+    timing: TimingParams = group(TimingParams, "time parameterisation of the plan")
+
+
+def default_settings_path() -> pathlib.Path:
+    from climb_core.ros_env import project_root
+
+    return project_root() / "config" / "planner.yaml"
+
+
+_CACHE: dict[str, PlannerSettings] = {}
+
+
+def load_settings(path: str | pathlib.Path | None = None) -> PlannerSettings:
+    """The ``primitive_adaptation`` section of config/planner.yaml (or ``path``), cached."""
+    p = str(path or default_settings_path())
+    if p not in _CACHE:
+        _CACHE[p] = load_params(p, PlannerSettings, NODE_NAME)
+    return _CACHE[p]
+
+
+def replace(settings: PlannerSettings, group_name: str, **changes) -> PlannerSettings:
+    """Copy of ``settings`` with fields of one group changed (tests, scripts)."""
+    return dataclasses.replace(settings, **{group_name: dataclasses.replace(getattr(settings, group_name), **changes)})

@@ -1,0 +1,220 @@
+"""The ladder sweep (ladder_climbing_drc_hubo.txt Fig. 9): grid file -> tasks -> CSV + heat maps.
+
+A grid file (shared/bench/ladder_grid.yaml) has a ``base`` ladder spec, ``grid`` ranges for
+``inclination_deg`` and ``rung_spacing`` (start, stop, step; inclusive), ``steps`` and
+``timeout_s``. Every grid point is one task: plan a ``steps``-cycle climb of that ladder.
+:func:`run_task` is what a worker runs (a local process or a Ray task): it returns one CSV row,
+with the constraint that stopped a failed plan (``failure_constraint``: reach:<limb>,
+torque_limit:<joint>, collision:<a>|<b>, friction, equilibrium, grip_limit:<limb>, time_limit ...)
+and its category (the part before the colon).
+"""
+from __future__ import annotations
+
+import copy
+import csv
+import math
+import pathlib
+import time
+from dataclasses import dataclass
+from typing import Any, Iterable
+
+import numpy as np
+import yaml
+
+from climb_core.errors import SpecError
+
+CSV_FIELDS = ("inclination_deg", "rung_spacing", "success", "plan_time_s", "failure_category", "failure_constraint",
+              "failure_detail", "rungs_reached", "n_stances", "attempts", "backtracks", "robot", "strategy", "steps",
+              "timeout_s", "seed")
+
+
+@dataclass(frozen=True)
+class SweepTask:
+    inclination_deg: float
+    rung_spacing: float
+    spec: dict  # full scenario dict
+    robot: str
+    steps: int
+    timeout_s: float
+    seed: int
+    strategy: str = ""
+
+    @property
+    def name(self) -> str:
+        return f"incl{self.inclination_deg:g}_sp{self.rung_spacing:.2f}"
+
+
+def _range(field: str, r: Any) -> list[float]:
+    try:
+        start, stop, step = float(r["start"]), float(r["stop"]), float(r["step"])
+    except (KeyError, TypeError, ValueError):
+        raise SpecError(f"grid.{field}", "needs numeric start, stop and step") from None
+    if not (step > 0 and stop >= start and all(math.isfinite(x) for x in (start, stop, step))):
+        raise SpecError(f"grid.{field}", "needs step > 0 and stop >= start")
+    n = int(round((stop - start) / step)) + 1
+    return [round(start + k * step, 10) for k in range(n)]
+
+
+def load_grid(path: str | pathlib.Path) -> dict:
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise SpecError("grid", f"file {path} not found")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise SpecError("grid", f"{path}: invalid YAML: {exc}") from None
+    if not isinstance(data, dict) or "base" not in data or "grid" not in data:
+        raise SpecError("grid", f"{path} needs `base` and `grid`")
+    unknown = set(data["grid"]) - {"inclination_deg", "rung_spacing"}
+    if unknown:
+        raise SpecError("grid.grid", f"unknown axes {sorted(unknown)} (inclination_deg, rung_spacing)")
+    return data
+
+
+def make_tasks(grid: dict, robot: str, steps: int | None = None, timeout_s: float | None = None, seed: int = 0,
+               strategy: str = "", select: Iterable[tuple[float, float]] | None = None) -> list[SweepTask]:
+    incls = _range("inclination_deg", grid["grid"]["inclination_deg"])
+    spacings = _range("rung_spacing", grid["grid"]["rung_spacing"])
+    steps = int(grid.get("steps", 2) if steps is None else steps)
+    timeout_s = float(grid.get("timeout_s", 120.0) if timeout_s is None else timeout_s)
+    wanted = None if select is None else {(round(a, 6), round(b, 6)) for a, b in select}
+    tasks = []
+    for inc in incls:
+        for sp in spacings:
+            if wanted is not None and (round(inc, 6), round(sp, 6)) not in wanted:
+                continue
+            spec = copy.deepcopy(grid["base"])
+            spec.setdefault("ladder", {})
+            spec["ladder"]["inclination_deg"] = float(inc)
+            spec["ladder"]["rung_spacing"] = float(sp)
+            tasks.append(SweepTask(inc, sp, spec, robot, steps, timeout_s, seed, strategy))
+    if wanted is not None and len(tasks) != len(wanted):
+        raise SpecError("ladders", "some selected (inclination, spacing) pairs are not grid points")
+    return tasks
+
+
+def failure_category(constraint: str) -> str:
+    return constraint.split(":", 1)[0] if constraint else ""
+
+
+def run_task(task: SweepTask) -> dict:
+    """Plan one grid ladder; never raises (errors become a failed row)."""
+    import dataclasses
+
+    from climb_core.environment import build_environment
+    from climb_core.ladder import parse_scenario
+    from climb_core.robot import load_robot
+
+    from .climb_planner import plan_climb
+    from .settings import load_settings
+
+    row = {"inclination_deg": task.inclination_deg, "rung_spacing": task.rung_spacing, "robot": task.robot,
+           "steps": task.steps, "timeout_s": task.timeout_s, "seed": task.seed}
+    t0 = time.perf_counter()
+    try:
+        settings = load_settings()
+        if task.strategy:
+            settings = dataclasses.replace(settings, planning=dataclasses.replace(settings.planning,
+                                                                                  strategy=task.strategy))
+        robot = load_robot(task.robot)
+        env = build_environment(parse_scenario(task.spec, name=task.name))
+        res = plan_climb(robot, env, task.steps, settings=settings, seed=task.seed, timeout_s=task.timeout_s)
+        s = res.summary()
+        row.update(success=bool(res.success), plan_time_s=round(res.plan_time_s, 3),
+                   failure_constraint=res.failure_constraint if not res.success else "",
+                   failure_detail="" if res.success else res.failure_detail[:300],
+                   rungs_reached=s["rungs_reached"], n_stances=s["n_stances"], attempts=s["attempts"],
+                   backtracks=s["backtracks"], strategy=settings.planning.strategy)
+    except SpecError as exc:
+        row.update(success=False, plan_time_s=round(time.perf_counter() - t0, 3), failure_constraint="spec",
+                   failure_detail=str(exc), rungs_reached=0, n_stances=0, attempts=0, backtracks=0,
+                   strategy=task.strategy)
+    row["failure_category"] = failure_category(row.get("failure_constraint", ""))
+    return row
+
+
+def write_csv(rows: list[dict], path: str | pathlib.Path) -> pathlib.Path:
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(CSV_FIELDS), extrasaction="ignore")
+        w.writeheader()
+        for r in sorted(rows, key=lambda r: (r["inclination_deg"], r["rung_spacing"])):
+            w.writerow(r)
+    return path
+
+
+def read_csv(path: str | pathlib.Path) -> list[dict]:
+    with pathlib.Path(path).open() as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        r["inclination_deg"] = float(r["inclination_deg"])
+        r["rung_spacing"] = float(r["rung_spacing"])
+        r["success"] = r["success"] in ("True", "true", "1")
+        r["plan_time_s"] = float(r["plan_time_s"])
+    return rows
+
+
+def statistics(rows: list[dict]) -> dict:
+    n = len(rows)
+    ok = [r for r in rows if r["success"]]
+    times = [float(r["plan_time_s"]) for r in ok]
+    cats: dict[str, int] = {}
+    for r in rows:
+        if not r["success"]:
+            cats[r["failure_category"] or "unknown"] = cats.get(r["failure_category"] or "unknown", 0) + 1
+    return {"n": n, "n_success": len(ok), "success_rate": (len(ok) / n) if n else 0.0,
+            "median_plan_time_s": float(np.median(times)) if times else float("nan"),
+            "p90_plan_time_s": float(np.percentile(times, 90)) if times else float("nan"),
+            "failures_by_category": dict(sorted(cats.items(), key=lambda kv: -kv[1]))}
+
+
+def heat_maps(rows: list[dict], path: str | pathlib.Path, title: str = "") -> pathlib.Path:
+    """Success map (black = planned, like the paper's Fig. 9, failures coloured by category) and a
+    planning-time map, side by side, as one PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+
+    incls = sorted({r["inclination_deg"] for r in rows})
+    sps = sorted({r["rung_spacing"] for r in rows})
+    cats = sorted({r["failure_category"] or "unknown" for r in rows if not r["success"]})
+    codes = {c: i + 1 for i, c in enumerate(cats)}
+    S = np.full((len(sps), len(incls)), np.nan)
+    T = np.full((len(sps), len(incls)), np.nan)
+    for r in rows:
+        i, j = sps.index(r["rung_spacing"]), incls.index(r["inclination_deg"])
+        S[i, j] = 0 if r["success"] else codes[r["failure_category"] or "unknown"]
+        T[i, j] = float(r["plan_time_s"])
+    palette = ["black", "tab:red", "tab:orange", "tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:pink",
+               "tab:gray", "tab:olive", "tab:cyan"]
+    cmap = ListedColormap(palette[:len(cats) + 1])
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.2))
+    extent = (incls[0] - 0.5, incls[-1] + 0.5, 100 * sps[0] - 0.5, 100 * sps[-1] + 0.5)
+    ax = axes[0]
+    ax.imshow(S, origin="lower", aspect="auto", cmap=cmap, vmin=-0.5, vmax=len(cats) + 0.5, extent=extent,
+              interpolation="nearest")
+    st = statistics(rows)
+    ax.set_title(f"planned (black): {st['n_success']}/{st['n']} = {100 * st['success_rate']:.0f} %")
+    ax.set_xlabel("inclination [deg]")
+    ax.set_ylabel("rung spacing [cm]")
+    handles = [plt.Rectangle((0, 0), 1, 1, color=palette[0])] + \
+              [plt.Rectangle((0, 0), 1, 1, color=palette[codes[c]]) for c in cats]
+    ax.legend(handles, ["planned"] + [f"failed: {c}" for c in cats], loc="upper left", fontsize=7,
+              bbox_to_anchor=(1.0, 1.0))
+    ax = axes[1]
+    im = ax.imshow(T, origin="lower", aspect="auto", cmap="viridis", extent=extent, interpolation="nearest")
+    ax.set_title(f"planning time [s] (median of successes {st['median_plan_time_s']:.2f} s)")
+    ax.set_xlabel("inclination [deg]")
+    ax.set_ylabel("rung spacing [cm]")
+    fig.colorbar(im, ax=ax)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

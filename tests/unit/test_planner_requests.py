@@ -1,0 +1,80 @@
+"""Requests of the primitive_adaptation node (ROS-free core) and contact-plan adaptation."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from climb_core.contact import ContactPlan
+from climb_core.environment import build_environment
+from climb_core.errors import SpecError
+from climb_core.ladder import load_scenario
+from climb_core.robot import load_robot
+from planner_node import plan_io
+from planner_node.adaptation_node import AdaptationService, parse_request
+from planner_node.climb_planner import contact_plan_steps, plan_climb, plan_from_contact_plan
+from planner_node.primitives import load_library
+from planner_node.settings import load_settings
+from planner_node.verify import verify_plan
+
+
+def test_requests_are_validated_field_by_field():
+    r = parse_request("{ladder: default, steps: 1, seed: 3, timeout_s: 20}")
+    assert r == {"ladder": "default", "robot": "g1", "steps": 1, "seed": 3, "timeout_s": 20.0, "start": None, "id": ""}
+    assert parse_request("")["steps"] == 2
+    for text, field in (("steps: [1, 2", "request"), ("- a\n- b", "request"), ("{steps: -1}", "request.steps"),
+                        ("{steps: true}", "request.steps"), ("{seed: 1.5}", "request.seed"),
+                        ("{timeout_s: 0}", "request.timeout_s"), ("{timeout_s: soon}", "request.timeout_s"),
+                        ("{ladder: 3}", "request.ladder"), ("{rungs: 2}", "request.rungs")):
+        with pytest.raises(SpecError) as err:
+            parse_request(text)
+        assert err.value.field == field, text
+
+
+def test_service_rejects_an_unknown_ladder_with_a_spec_error():
+    service = AdaptationService(load_settings())
+    with pytest.raises(SpecError):
+        service.plan_request(parse_request("{ladder: no_such_ladder, steps: 1}"))
+    bad_spec = {"ladder": {"type": "regular", "inclination_deg": 75.0, "rung_spacing": 0.9, "n_rungs": 8}}
+    with pytest.raises(SpecError) as err:
+        service.plan_request(parse_request(plan_io.summary_line({"ladder": bad_spec, "steps": 1})))
+    assert "rung_spacing" in err.value.field
+
+
+@pytest.fixture(scope="module")
+def one_cycle():
+    robot = load_robot("g1")
+    env = build_environment(load_scenario("default"))
+
+    def compute():
+        res = plan_climb(robot, env, 1, seed=0)
+        return (res.plan if res.success else None), res.summary()
+
+    plan, meta = plan_io.cached_plan(plan_io.source_fingerprint("one_cycle", env.scenario, 1, 0), compute)
+    assert plan is not None, meta
+    return robot, env, plan
+
+
+def test_a_contact_plan_becomes_a_feasible_whole_body_plan(one_cycle):
+    robot, env, plan = one_cycle
+    # the stance sequence (and its configurations) of a climb, as the contact search would give it
+    stances = [plan.initial_stance] + [t.target_stance for t in plan.transitions]
+    qs = [plan.transitions[0].path[0]] + [t.path[-1] for t in plan.transitions]
+    cp = ContactPlan("g1", "default", list(robot.joint_names), stances, qs)
+    kinds = [s.kind for s in contact_plan_steps(load_library("g1", "forward"), cp)]
+    assert kinds.count("limb") == sum(1 for t in plan.transitions if t.moving_limb) and "com" in kinds
+    res = plan_from_contact_plan(robot, env, cp, seed=0)
+    assert res.success, res.failure_detail
+    assert [t.target_stance.limbs for t in res.plan.transitions] == [s.limbs for s in stances[1:]]
+    rep = verify_plan(robot, env, res.plan, q_start=qs[0], refine=2)
+    assert rep.ok, rep.summary()
+    assert np.allclose(res.plan.transitions[-1].path[-1][:3], qs[-1][:3], atol=0.05)
+
+
+def test_contact_plans_changing_two_holds_at_once_are_rejected(one_cycle):
+    robot, env, plan = one_cycle
+    a = plan.initial_stance
+    b = [t.target_stance for t in plan.transitions if len(t.target_stance.holds) == 4][0]  # both hands added
+    cp = ContactPlan("g1", "default", list(robot.joint_names), [a, b], [plan.transitions[0].path[0]] * 2)
+    with pytest.raises(SpecError) as err:
+        contact_plan_steps(load_library("g1", "forward"), cp)
+    assert err.value.field == "contact_plan.stances[1]"
