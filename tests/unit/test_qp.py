@@ -291,3 +291,60 @@ def test_witness_point_jacobian_and_drift_match_finite_differences(robot):
     ahead, behind = position(pin.integrate(model, q, v * eps)), position(pin.integrate(model, q, -v * eps))
     assert J @ v == pytest.approx((ahead - behind) / (2 * eps), abs=1e-6)  # [m/s]
     assert drift == pytest.approx((ahead - 2 * position(q) + behind) / eps ** 2, abs=2e-3)  # [m/s^2]
+
+
+def test_workspace_build_matches_the_reference_build(robot, env, params):
+    """The preallocated workspace + batched dampers give the QP of the straightforward build:
+    4-contact ladder stance (knees near the rungs: damper rows), perturbed states over several
+    ticks (the workspace and the coherence budgets are reused), then the hips rolled inward
+    (the feet within the influence distance of each other: a self pair)."""
+    from climb_core import fixtures
+    from controller_node.controller import Controller
+    from controller_node.estimator import RobotState
+
+    stance, q0 = fixtures.get("ladder_4_contacts", robot, env)
+    controller = Controller(robot, params, env)
+    rng = np.random.default_rng(3)
+    controller.reset(RobotState(0.0, q0.copy(), np.zeros(robot.nv)), stance)
+    wb = controller.wb
+    roll_l, roll_r = robot.joint_index_v("left_hip_roll_joint") + 1, robot.joint_index_v("right_hip_roll_joint") + 1  # q
+    cases = []
+    for tick in range(6):
+        q = q0.copy()
+        q[7:] += rng.normal(0.0, 0.003, robot.nq - 7)
+        cases.append((q, rng.normal(0.0, 0.02, robot.nv)))
+    q = q0.copy()
+    q[roll_l] -= 0.1  # hip roll inward: the feet 5 cm apart (a self pair)
+    q[roll_r] += 0.1
+    cases.append((q, np.zeros(robot.nv)))
+    seen_rows, seen_self = 0, False
+    solver = DaqpSolver()
+    for q, v in cases:
+        wb.update(q, v)
+        controller.state = RobotState(0.0, q, v)
+        contacts = list(controller.contacts.values())
+        disabled = controller._disabled_pairs()
+        fast = wb.build(contacts, controller.active_tasks, disabled)
+        fast_rows = [d.name for d in wb._dampers]
+        reference = wb.build_reference(contacts, controller.active_tasks, disabled)
+        assert fast_rows == [d.name for d in wb._dampers]
+        assert fast.row_blocks == reference.row_blocks and np.array_equal(fast.is_eq, reference.is_eq)
+        for name in ("H", "g", "A", "lb", "ub", "lower", "upper"):
+            a = np.clip(getattr(fast, name), -1e30, 1e30)
+            b = np.clip(getattr(reference, name), -1e30, 1e30)
+            assert np.allclose(a, b, rtol=1e-12, atol=1e-9), name
+        x_ref = solver.solve(reference).x
+        x_fast = solver.solve(fast).x
+        assert np.allclose(x_fast, x_ref, rtol=1e-6, atol=1e-6)
+        # the hot path (daqp on the workspace arrays) gives the same solution and leaves them intact
+        result = wb.solve(contacts, controller.active_tasks, disabled)
+        assert np.allclose(result.solution.x, x_ref, rtol=1e-6, atol=1e-6)
+        assert np.array_equal(result.problem.A, fast.A) and np.array_equal(result.problem.upper, fast.upper)
+        seen_rows = max(seen_rows, len(fast_rows))
+        seen_self |= any(name.count("_link") == 2 for name in fast_rows)
+    assert seen_rows >= 2 and seen_self
+    # a result's problem is not silently replaced by a later tick's
+    result = wb.solve(contacts, controller.active_tasks, disabled)
+    wb.build(contacts, controller.active_tasks, disabled)
+    with pytest.raises(RuntimeError):
+        result.problem

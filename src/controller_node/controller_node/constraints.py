@@ -68,6 +68,10 @@ def friction_generators(normal: np.ndarray, mu: float, count: int = 4) -> np.nda
     return edges / np.linalg.norm(edges, axis=0)
 
 
+_EYE6 = np.eye(6)
+_EYE6.flags.writeable = False  # the (shared) wrench map of a grasp
+
+
 @dataclass
 class ActiveContact:
     """A contact the controller holds; variables and rows it adds to the QP.
@@ -107,6 +111,7 @@ class ActiveContact:
         mu = self.friction * friction_margin
         self.generators = np.stack([friction_generators(n, mu, count) for n in self.normals_in_world])
         k, _, g = self.generators.shape
+        self._offsets_in_frame = self.points_in_frame - self.reference_in_frame
         self._force_block = self.generators.transpose(1, 0, 2).reshape(3, k * g)
         self._normal_rows = np.zeros((k, k * g))
         for i in range(k):
@@ -121,13 +126,13 @@ class ActiveContact:
     def wrench_map(self, R_world_frame: np.ndarray) -> np.ndarray:
         """Phi (6, n_var): wrench [N, N m] at the reference point, world axes, from the variables."""
         if self.bilateral:
-            return np.eye(6)
+            return _EYE6
         k, _, g = self.generators.shape
-        offsets = (self.points_in_frame - self.reference_in_frame) @ R_world_frame.T  # (k, 3) world
-        moments = skew_stack(offsets) @ self.generators  # (k, 3, g)
+        offsets = self._offsets_in_frame @ R_world_frame.T  # (k, 3) world
         phi = np.empty((6, k * g))
         phi[:3] = self._force_block
-        phi[3:] = moments.transpose(1, 0, 2).reshape(3, k * g)
+        # moments offset_i x G_i[:, j], laid out like the force block (point-major columns)
+        phi[3:] = np.einsum("ijk,pj,pkg->ipg", _LEVI_CIVITA, offsets, self.generators).reshape(3, k * g)
         return phi
 
     def normal_rows(self) -> np.ndarray:
@@ -295,7 +300,7 @@ class CollisionAvoidance:
                  env_links: tuple[str, ...], environment: list[tuple[str, object, object]],
                  self_pairs: tuple[tuple[str, str], ...], influence_distance: float,
                  security_distance: float, damping: float, broadphase_margin: float,
-                 max_braking: float = np.inf):
+                 max_braking: float = np.inf, broadphase_slack: float = 0.03):
         import coal
 
         self._coal = coal
@@ -304,6 +309,7 @@ class CollisionAvoidance:
         self.xi = damping  # [m/s]
         self.margin = broadphase_margin  # [m]
         self.max_braking = max_braking  # [m/s^2] cap on the deceleration a damper may demand
+        self.slack = broadphase_slack  # [m] sphere-centre motion before the broadphase re-runs
         self.missing_links = sorted(set(env_links) - set(robot_geometries))
         self.self_pairs = tuple((a, b) for a, b in self_pairs if a in robot_geometries and b in robot_geometries)
         self._env = [(name, geom, tf) for name, geom, tf in environment]
@@ -329,6 +335,7 @@ class CollisionAvoidance:
         self._request = coal.DistanceRequest()
         self._request.enable_signed_distance = True
         self._result = coal.DistanceResult()
+        self._setup_batched(env_links, robot_geometries)
 
     # -- geometry helpers ---------------------------------------------------------------
     def _sphere(self, geom) -> tuple[np.ndarray, float]:
@@ -389,13 +396,10 @@ class CollisionAvoidance:
             n = -np.asarray(result.normal, dtype=float)  # coal normal points from o1 to o2
         return float(d), p1, p2, n
 
-    def rows(self, model: pin.Model, data: pin.Data, v: np.ndarray, dt: float,
-             disabled: set[tuple[str, str]] | frozenset = frozenset()) -> list[DamperRow]:
-        """Damper rows for every pair closer than the influence distance.
-
-        ``disabled``: (link, surface) pairs switched off (limb making or holding contact with
-        that surface). Needs pin data with joint Jacobians and forwardKinematics(q, v, 0).
-        """
+    def rows_reference(self, model: pin.Model, data: pin.Data, v: np.ndarray, dt: float,
+                       disabled: set[tuple[str, str]] | frozenset = frozenset()) -> list[DamperRow]:
+        """Reference implementation of :meth:`compute` (one pair at a time, per-pair Python):
+        kept to check the batched path against (tests/unit/test_qp.py). Same rows, same order."""
         rows: list[DamperRow] = []
         if not self._items:
             return rows
@@ -482,3 +486,289 @@ class CollisionAvoidance:
         # as max_braking allows instead of making the QP infeasible
         lower = min((rhs - d_dot) / dt, self.max_braking) - n_drift
         return DamperRow(name, d, d_dot, nJ, lower, n_drift, rhs)
+
+    # -- batched per-tick path --------------------------------------------------------------
+    def _setup_batched(self, env_links, robot_geometries) -> None:
+        """Index tables resolved once: joints, placements, pair names, coal distance functors."""
+        items = self._items
+        joints = sorted({item[2] for item in items})
+        self._joints = [int(j) for j in joints]  # pinocchio containers want Python ints
+        joint_slot = {j: i for i, j in enumerate(joints)}
+        self._item_slot = np.array([joint_slot[item[2]] for item in items], dtype=int)
+        self._item_joint = np.array([item[2] for item in items], dtype=int)
+        self._centre_in_joint = np.array([item[4] for item in items], dtype=float).reshape(-1, 3)
+        self._placement_R = np.array([item[3].rotation for item in items], dtype=float).reshape(-1, 3, 3)
+        self._placement_t = np.array([item[3].translation for item in items], dtype=float).reshape(-1, 3)
+        self._env_items_arr = np.array(self._env_items, dtype=int)
+        caps = self._env_capsules
+        self._cap_a = caps[None, :, :3]
+        self._cap_ab = (caps[:, 3:6] - caps[:, :3])[None]
+        self._cap_denom = np.maximum((self._cap_ab * self._cap_ab).sum(-1), 1e-12)
+        self._cap_r = caps[None, :, 6]
+        n_env = len(self._env)
+        self._n_env = n_env
+        self._env_radii = self._radii[self._env_items_arr][:, None] if len(self._env_items_arr) else np.zeros((0, 1))
+        self._env_names = [[f"{items[i][0]}|{surface}" for surface, _, _ in self._env] for i in self._env_items]
+        self._env_pair_links = [(items[i][0], [surface for surface, _, _ in self._env]) for i in self._env_items]
+        n_pairs = len(self._env_items) * n_env
+        self._functors: dict[int, object] = {}
+        # self pairs: item pairs, names
+        sa, sb, names, links = [], [], [], []
+        for link_a, link_b in self.self_pairs:
+            for ia in self._item_index[link_a]:
+                for ib in self._item_index[link_b]:
+                    sa.append(ia)
+                    sb.append(ib)
+                    names.append(f"{link_a}|{link_b}")
+                    links.append((link_a, link_b))
+        self._self_a = np.array(sa, dtype=int)
+        self._self_b = np.array(sb, dtype=int)
+        self._self_names = names
+        self._self_links = links
+        self._self_radii = self._radii[self._self_a] + self._radii[self._self_b] if sa else np.zeros(0)
+        # one table of pairs: environment pairs (pid = li * n_env + k, item, static sentinel),
+        # then self pairs (item a, item b)
+        self._n_env_pairs = n_pairs
+        n_items = len(items)
+        self._pair_a = np.concatenate([np.repeat(self._env_items_arr, n_env), self._self_a]).astype(int)
+        self._pair_b = np.concatenate([np.full(n_pairs, n_items), self._self_b]).astype(int)
+        self._pair_names = [name for row in self._env_names for name in row] + names
+        self._pair_disabled = np.zeros(n_pairs + len(sa), dtype=bool)
+        #: coherence budget [m] per pair: last exact distance - d_i - motion since (nan: unknown)
+        self._budget = np.full(n_pairs + len(sa), np.nan)
+        self._motion = np.zeros(n_items + 1)  # [m] per item this tick; the sentinel stays 0
+        self._prev_centres: np.ndarray | None = None
+        self._prev_R: np.ndarray | None = None
+        self._bp_centres: np.ndarray | None = None
+        self._candidates = np.zeros(0, dtype=int)
+        self._disabled_key: frozenset | None = None
+        self._item_masks = np.zeros((len(items), 0))
+        self.capacity = n_pairs + len(sa)  # most damper rows one tick can produce
+
+    def _broadphase(self, centres: np.ndarray) -> None:
+        """Pairs whose bounding spheres may come within cutoff before a centre moves ``slack``."""
+        cutoff = self.di + self.margin
+        parts = []
+        env_idx = self._env_items_arr
+        if self._n_env and len(env_idx):
+            c = centres[env_idx][:, None, :]
+            a, ab = self._cap_a, self._cap_ab
+            t = np.clip(((c - a) * ab).sum(-1) / self._cap_denom, 0.0, 1.0)
+            diff = (a + t[..., None] * ab) - c
+            gap = np.sqrt((diff * diff).sum(-1)) - self._cap_r - self._env_radii
+            parts.append(np.flatnonzero(gap < cutoff + self.slack))  # pid = li * n_env + k
+        if len(self._self_a):
+            dcs = centres[self._self_a] - centres[self._self_b]
+            gaps = np.sqrt((dcs * dcs).sum(-1)) - self._self_radii
+            parts.append(self._n_env_pairs + np.flatnonzero(gaps < cutoff + 2.0 * self.slack))
+        self._candidates = np.concatenate(parts) if parts else np.zeros(0, dtype=int)
+        self._bp_centres = centres
+
+    def _set_disabled(self, disabled) -> None:
+        key = disabled if isinstance(disabled, frozenset) else frozenset(disabled)
+        if key == self._disabled_key:
+            return
+        self._disabled_key = key
+        for li, (link, surfaces) in enumerate(self._env_pair_links):
+            for k, surface in enumerate(surfaces):
+                self._pair_disabled[li * self._n_env + k] = (link, surface) in key
+        for s, pair in enumerate(self._self_links):
+            self._pair_disabled[self._n_env_pairs + s] = pair in key
+
+    def _exact(self, g1, R1, t1, g2, tf2, functor_key):
+        """coal distance (cached functor per pair): d [m], witness points, unit normal from the
+        obstacle to the body (lists of floats, world)."""
+        functor = self._functors.get(functor_key)
+        if functor is None:
+            functor = self._functors[functor_key] = self._coal.ComputeDistance(g1, g2)
+        result = self._result
+        result.clear()
+        d = functor(self._coal.Transform3s(R1, t1), tf2, self._request, result)
+        p1 = result.getNearestPoint1().tolist()
+        p2 = result.getNearestPoint2().tolist()
+        dx, dy, dz = p1[0] - p2[0], p1[1] - p2[1], p1[2] - p2[2]
+        norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if d > 1e-6 and norm > 1e-9:
+            n = [dx / norm, dy / norm, dz / norm]
+        else:
+            n = (-np.asarray(result.normal, dtype=float)).tolist()  # coal normal points from o1 to o2
+        return float(d), p1, p2, n
+
+    def compute(self, model: pin.Model, data: pin.Data, v: np.ndarray, dt: float,
+                disabled: set[tuple[str, str]] | frozenset = frozenset()) -> "DamperBatch":
+        """Damper rows for every pair closer than the influence distance, batched.
+
+        ``disabled``: (link, surface) pairs switched off (limb making or holding contact with
+        that surface). Needs pin data with joint Jacobians and forwardKinematics(q, v, 0).
+        Every step below only skips pairs proven to be at least the influence distance apart,
+        so the rows are those of checking every pair exactly (:meth:`rows_reference`):
+
+        1. broadphase, bounding spheres vs environment capsules and vs each other (exact lower
+           bounds), all pairs at once, re-run only when a sphere centre moved more than
+           ``broadphase_slack`` since the last run (which kept the pairs within cutoff + slack,
+           resp. + 2 slack for two moving spheres: the gap is 1-Lipschitz in each centre);
+        2. temporal coherence: each pair keeps a budget, its last exact distance minus d_i, from
+           which every tick subtracts a bound on how far its bodies moved (|dc| + ||dR||_F reach,
+           all items at once); a pair is measured again when the budget is spent;
+        3. coal distances (cached functors) for the rest, then all rows and drifts in a few
+           matrix products.
+        """
+        if not self._items:
+            return DamperBatch.empty(model.nv)
+        if self._item_masks.shape[1] != model.nv:
+            self._item_masks = np.array([_support_mask(model, j) for j in self._item_joint.tolist()])
+        self._set_disabled(disabled)
+        oMi = data.oMi
+        H = np.array([oMi[j].homogeneous for j in self._joints])  # (J, 4, 4)
+        slot = self._item_slot
+        R_items = H[slot, :3, :3]  # (I, 3, 3)
+        t_items = H[slot, :3, 3]
+        centres = np.einsum("ijk,ik->ij", R_items, self._centre_in_joint) + t_items
+        if self._prev_centres is not None:  # spend the coherence budgets
+            dc = centres - self._prev_centres
+            dR = (R_items - self._prev_R).reshape(-1, 9)
+            motion = self._motion
+            motion[:-1] = np.sqrt((dc * dc).sum(-1)) + np.sqrt((dR * dR).sum(-1)) * self._reach
+            self._budget -= motion[self._pair_a] + motion[self._pair_b]
+        self._prev_centres, self._prev_R = centres, R_items
+        if self._bp_centres is not None:
+            dc = centres - self._bp_centres
+            rerun = float((dc * dc).sum(-1).max()) > self.slack * self.slack
+        else:
+            rerun = True
+        if rerun:
+            self._broadphase(centres)
+        cand = self._candidates
+        todo = cand[~((self._budget[cand] >= 0.0) | self._pair_disabled[cand])]
+        names: list[str] = []
+        distances: list[float] = []
+        normals: list[np.ndarray] = []
+        term_row: list[int] = []
+        term_item: list[int] = []
+        term_point: list[np.ndarray] = []
+        term_sign: list[float] = []
+        if len(todo):
+            n_env_pairs = self._n_env_pairs
+            it = self._pair_a[todo]
+            R_geom = np.matmul(R_items[it], self._placement_R[it])
+            t_geom = np.einsum("ijk,ik->ij", R_items[it], self._placement_t[it]) + t_items[it]
+            measured = np.empty(len(todo))
+            for n_i, (pid, item) in enumerate(zip(todo.tolist(), it.tolist())):
+                if pid < n_env_pairs:
+                    _, env_geom, env_tf = self._env[pid % self._n_env]
+                    d, p_body, _p_obstacle, n = self._exact(self._items[item][1], R_geom[n_i], t_geom[n_i],
+                                                            env_geom, env_tf, pid)
+                    measured[n_i] = d
+                    if d < self.di:
+                        term_row.append(len(names))
+                        term_item.append(item)
+                        term_point.append(p_body)
+                        term_sign.append(1.0)
+                        names.append(self._pair_names[pid])
+                        distances.append(d)
+                        normals.append(n)
+                else:
+                    ib = int(self._pair_b[pid])
+                    _, gb, jb, pb, _, _ = self._items[ib]
+                    Mb = oMi[jb] * pb
+                    d, p_a, p_b, n = self._distance(self._items[item][1],
+                                                    self._coal.Transform3s(R_geom[n_i], t_geom[n_i]),
+                                                    gb, self._coal.Transform3s(Mb.rotation, Mb.translation))
+                    measured[n_i] = d
+                    if d < self.di:
+                        row = len(names)
+                        term_row += [row, row]
+                        term_item += [item, ib]
+                        term_point += [p_a, p_b]
+                        term_sign += [1.0, -1.0]
+                        names.append(self._pair_names[pid])
+                        distances.append(d)
+                        normals.append(n)
+            self._budget[todo] = measured - self.di
+        k = len(names)
+        if k == 0:
+            return DamperBatch.empty(model.nv)
+        # rows n' J_p = ([n, p x n] @ J_world) * support mask, drifts n' Jdot_p v, all at once
+        items_t = np.array(term_item)
+        P = np.array(term_point)  # (T, 3) witness points, world
+        N = np.array(normals)
+        if len(items_t) != k:
+            rows_t = np.array(term_row)
+            N = N[rows_t]
+        W = np.empty((len(items_t), 6))
+        W[:, :3] = N
+        W[:, 3:] = np.einsum("ijk,tj,tk->ti", _LEVI_CIVITA, P, N)  # p x n
+        J_terms = (W @ data.J) * self._item_masks[items_t]  # (T, nv)
+        # drift n' a_p of each witness point (fixed in its joint's body, qdd = 0): with the joint's
+        # world-axes velocity (v_o, w) and acceleration (a, alpha) at its origin and r = p - origin,
+        # a_p = a + w x v_o + alpha x r + w x (w x r)
+        va = np.array([x for j in self._item_joint[items_t].tolist()
+                       for x in (data.v[j].vector, data.a[j].vector)]).reshape(-1, 4, 3)
+        world = np.matmul(va, R_items[items_t].transpose(0, 2, 1))  # (T, 4, 3): v_o, w, a, alpha
+        w_t = world[:, 1]
+        r = P - t_items[items_t]
+        triple = np.einsum("ijk,ti,tsj,tsk->t", _LEVI_CIVITA, N,
+                           world[:, 1::2], np.stack((world[:, 0], r), axis=1))  # n.(w x v_o) + n.(alpha x r)
+        # n.a, n.w, w.r, n.r, w.w
+        dots = np.einsum("tsi,tsi->ts", np.stack((N, N, w_t, N, w_t), axis=1),
+                         np.stack((world[:, 2], w_t, r, r, w_t), axis=1))
+        n_drift_t = dots[:, 0] + triple + dots[:, 1] * dots[:, 2] - dots[:, 3] * dots[:, 4]
+        if len(items_t) == k:  # no self pair: one term per row, in row order
+            rows = J_terms
+            n_drift = n_drift_t
+        else:
+            sign = np.array(term_sign)
+            rows = np.zeros((k, model.nv))
+            n_drift = np.zeros(k)
+            np.add.at(rows, rows_t, sign[:, None] * J_terms)
+            np.add.at(n_drift, rows_t, sign * n_drift_t)
+        d_arr = np.array(distances)
+        d_dot = rows @ v
+        # eq. 6-8 with the sign restored: d_dot + dt d_ddot >= -xi (d - ds) / (di - ds)
+        bound = -self.xi * (d_arr - self.ds) / (self.di - self.ds)
+        # d_ddot >= (bound - d_dot) / dt, capped: a pair entering the zone too fast is braked as hard
+        # as max_braking allows instead of making the QP infeasible
+        lower = np.minimum((bound - d_dot) / dt, self.max_braking) - n_drift
+        return DamperBatch(names, d_arr, d_dot, rows, lower, n_drift, bound)
+
+    def rows(self, model: pin.Model, data: pin.Data, v: np.ndarray, dt: float,
+             disabled: set[tuple[str, str]] | frozenset = frozenset()) -> list[DamperRow]:
+        """Damper rows for every pair closer than the influence distance (see :meth:`compute`)."""
+        return self.compute(model, data, v, dt, disabled).as_rows()
+
+
+def _levi_civita() -> np.ndarray:
+    eps = np.zeros((3, 3, 3))
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        eps[i, j, k], eps[i, k, j] = 1.0, -1.0
+    return eps
+
+
+#: (3, 3, 3) permutation tensor: einsum("ijk,tj,tk->ti", eps, a, b) = a x b row-wise
+_LEVI_CIVITA = _levi_civita()
+
+
+@dataclass
+class DamperBatch:
+    """The damper rows of one tick as arrays: ``rows @ qdd >= lower`` (k rows)."""
+
+    names: list[str]  # "link|surface" or "link_a|link_b"
+    distance: np.ndarray  # (k,) [m]
+    distance_rate: np.ndarray  # (k,) [m/s]
+    rows: np.ndarray  # (k, nv) n' J
+    lower: np.ndarray  # (k,) [m/s^2]
+    drift: np.ndarray  # (k,) [m/s^2] n' Jdot v
+    bound: np.ndarray  # (k,) [m/s] -xi (d - ds) / (di - ds)
+
+    @classmethod
+    def empty(cls, nv: int) -> "DamperBatch":
+        z = np.zeros(0)
+        return cls([], z, z, np.zeros((0, nv)), z, z, z)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def as_rows(self) -> list[DamperRow]:
+        return [DamperRow(self.names[i], float(self.distance[i]), float(self.distance_rate[i]), self.rows[i],
+                          float(self.lower[i]), float(self.drift[i]), float(self.bound[i]))
+                for i in range(len(self.names))]

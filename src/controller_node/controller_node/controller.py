@@ -166,6 +166,8 @@ class Controller:
         self._creep_dir = np.zeros(3)
         self._creep_posture = np.zeros(self.na)
         self.guard_off: set[tuple[str, str]] = set()
+        self._disabled_key: tuple | None = None
+        self._disabled_cache: frozenset[tuple[str, str]] = frozenset()
         self.replan_needed = False
         # F/T
         self._ft_filtered: dict[str, np.ndarray] = {}
@@ -195,7 +197,8 @@ class Controller:
         objects = [(name, geom, tf) for name, geom, tf in environment.collision_objects()
                    if environment.surfaces[name].role in roles]
         return CollisionAvoidance(geometries, c.env_links, objects, c.self_pair_tuples, c.influence_distance,
-                                  c.security_distance, c.damping, c.broadphase_margin, c.max_braking)
+                                  c.security_distance, c.damping, c.broadphase_margin, c.max_braking,
+                                  c.broadphase_slack)
 
     def _find_ft_frames(self, robot) -> dict[str, int]:
         """sensor -> frame id of the sensor joint's child link (the frame of the wrench)."""
@@ -503,16 +506,22 @@ class Controller:
         return Hold(planned.limb, planned.robot_surface, planned.env_surface, points, planned.friction,
                     planned.bilateral, planned.grip_force_limit)
 
-    def _disabled_pairs(self) -> set[tuple[str, str]]:
+    def _disabled_pairs(self) -> frozenset[tuple[str, str]]:
+        """(link, surface) pairs without dampers: limbs holding a surface, guards switched off.
+        Cached on what it depends on (the same frozenset object while nothing changed)."""
+        key = (tuple((limb, hold.env_surface) for limb, hold in self.holds.items() if limb in self.contacts),
+               tuple(self.guard_off))
+        if key == self._disabled_key:
+            return self._disabled_cache
         out = set()
-        for limb, hold in self.holds.items():
-            if limb in self.contacts:
-                for link in self.limb_links[limb]:
-                    out.add((link, hold.env_surface))
-        for limb, surface in self.guard_off:
+        for limb, surface in key[0]:
             for link in self.limb_links[limb]:
                 out.add((link, surface))
-        return out
+        for limb, surface in key[1]:
+            for link in self.limb_links[limb]:
+                out.add((link, surface))
+        self._disabled_key, self._disabled_cache = key, frozenset(out)
+        return self._disabled_cache
 
     def set_guard(self, limb: str, surface: str, on: bool) -> None:
         """Collision dampers between the limb's links and ``surface`` on (True) or off."""

@@ -22,6 +22,7 @@ Every topic is RELIABLE / VOLATILE, as the bridge's.
 from __future__ import annotations
 
 import array
+import os
 import sys
 import time
 from collections import deque
@@ -60,6 +61,13 @@ DIAGNOSTICS_EVERY = 200  # ticks between two diagnostics messages
 def qos(depth: int = 10) -> QoSProfile:
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
+
+
+def _as_array(values) -> np.ndarray:
+    """A float64 numpy view of an ``array.array('d')`` message field (a copy for other sequences)."""
+    if isinstance(values, array.array) and values.typecode == "d":
+        return np.frombuffer(values, dtype=float)
+    return np.asarray(values, dtype=float)
 
 
 def to_ns(stamp: Time) -> int:
@@ -113,6 +121,7 @@ class ControllerNode(LifecycleNode):
         self.robot, self.env = robot, env
         self.estimator = GroundTruthEstimator(robot.joint_names)
         self.sensors = tuple(robot.config.ft_sensors)
+        self._ft_keys = tuple(f"ft/{s}" for s in self.sensors)
         self.pub_command = self.create_lifecycle_publisher(JointCommand, "joint_command", qos())
         self.pub_gripper = self.create_lifecycle_publisher(GripperCommand, "gripper_command", qos())
         self.pub_state = self.create_lifecycle_publisher(ControllerState, "controller/state", qos())
@@ -128,6 +137,10 @@ class ControllerNode(LifecycleNode):
         self._names = list(self.controller.joint_names)
         self._mode_code = JointCommand.PWM if p.mode == "compliance" else JointCommand.TORQUE
         self._modes = bytes([self._mode_code] * len(self._names))
+        # the outgoing command, allocated once: per tick only the stamp and the values change
+        self._cmd = JointCommand()
+        self._cmd.names = self._names
+        self._cmd.modes = self._modes
         self.get_logger().info(f"configured: {p.robot} on {p.ladder}, mode {p.mode}, {p.execution}")
         return TransitionCallbackReturn.SUCCESS
 
@@ -204,11 +217,12 @@ class ControllerNode(LifecycleNode):
 
     def _complete_stamp(self) -> int | None:
         """The stamp shared by joint_states, base truth and every F/T, if they agree."""
-        stamp = self._stamps.get("joints")
-        if stamp is None or self._stamps.get("base") != stamp:
+        stamps = self._stamps
+        stamp = stamps.get("joints")
+        if stamp is None or stamps.get("base") != stamp:
             return None
-        for s in self.sensors:
-            if self._stamps.get(f"ft/{s}") != stamp:
+        for key in self._ft_keys:
+            if stamps.get(key) != stamp:
                 return None
         return stamp
 
@@ -232,11 +246,13 @@ class ControllerNode(LifecycleNode):
         base: Odometry = self._latest["base"]
         pose, tw = base.pose.pose, base.twist.twist
         ft = {}
-        for s in self.sensors:
-            w = self._latest[f"ft/{s}"].wrench
-            ft[s] = np.array([w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z])
+        for s, key in zip(self.sensors, self._ft_keys):
+            w = self._latest[key].wrench
+            f, m = w.force, w.torque
+            ft[s] = np.array((f.x, f.y, f.z, m.x, m.y, m.z))
+        # sequence<double> fields arrive as array.array: numpy views of their buffers, no copy
         return self.estimator.estimate_local(
-            stamp * 1e-9, js.name, np.asarray(js.position), np.asarray(js.velocity),
+            stamp * 1e-9, js.name, _as_array(js.position), _as_array(js.velocity),
             np.array([pose.position.x, pose.position.y, pose.position.z]),
             np.array([pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w]),
             np.array([tw.linear.x, tw.linear.y, tw.linear.z, tw.angular.x, tw.angular.y, tw.angular.z]),
@@ -253,10 +269,9 @@ class ControllerNode(LifecycleNode):
             c.reset(state, stance)
             self._reset_pending = False
         out = c.tick(state)
-        cmd = JointCommand()
-        cmd.header.stamp = to_time(stamp)
-        cmd.names = self._names
-        cmd.modes = self._modes
+        cmd = self._cmd
+        cmd.header.stamp.sec = int(stamp // _NS)
+        cmd.header.stamp.nanosec = int(stamp % _NS)
         cmd.values = array.array("d", out.values.tobytes())
         self.pub_command.publish(cmd)
         self.latencies_ms.append((time.perf_counter() - self._received_at) * 1e3)
@@ -304,6 +319,17 @@ class ControllerNode(LifecycleNode):
         self.pub_diag.publish(msg)
 
 
+def _apply_nice(node: ControllerNode) -> None:
+    increment = int(node.get_parameter("nice").value)
+    if increment == 0:
+        return
+    try:
+        os.nice(increment)
+        node.get_logger().info(f"niceness now {os.nice(0)}")
+    except OSError as err:  # no CAP_SYS_NICE: run at the inherited priority
+        node.get_logger().warning(f"nice({increment}) refused: {err}")
+
+
 def main(args: list[str] | None = None) -> int:
     apply_local_dds_env()
     rclpy.init(args=args)
@@ -311,9 +337,12 @@ def main(args: list[str] | None = None) -> int:
     code = 0
     try:
         node = ControllerNode()
+        _apply_nice(node)
         if node.get_parameter("autostart").value:
             node.trigger_configure()
             node.trigger_activate()
+        # rclpy.experimental.EventsExecutor (Jazzy wheels) was tried: the lifecycle node configures
+        # but never answers a lock-step state and ignores SIGINT, so the single-threaded one stays
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         executor.spin()

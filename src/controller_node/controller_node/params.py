@@ -104,6 +104,10 @@ class CollisionParams:
                                            "feasible when a pair enters the zone too fast)")
     broadphase_margin: float = param(0.0, unit="m", min=0.0,
                                      description="bounding-sphere prefilter margin before calling coal")
+    broadphase_slack: float = param(0.03, unit="m", min=0.0,
+                                    description="the sphere-vs-capsule broadphase re-runs when a bounding-sphere "
+                                                "centre moved this far since its last run (pairs within the cutoff "
+                                                "plus this are kept meanwhile; conservative)")
     env_links: tuple[str, ...] = param(
         ("left_hand_palm_link", "right_hand_palm_link", "left_wrist_yaw_link", "right_wrist_yaw_link",
          "left_hand_index_1_link", "right_hand_index_1_link", "left_hand_middle_1_link",
@@ -189,6 +193,10 @@ class ControllerParams:
                                 description="stance fixture (climb_core.fixtures) whose holds are active at "
                                             "activation (the bridge's initial_posture)")
     autostart: bool = param(True, unit="-", description="node: configure and activate on start-up")
+    nice: int = param(0, unit="-", min=-20, max=19,
+                      description="node: niceness increment applied at start-up (os.nice; negative = higher "
+                                  "priority, needs CAP_SYS_NICE / root; 0 = inherit). The controller is on the "
+                                  "lock-step critical path: -10 keeps its latency on a busy machine")
     fsm_table: str = param("default", unit="-", description="config/fsm/<name>.yaml or a path")
     state_timeout_s: float = param(0.05, unit="s", min=0.0,
                                    description="realtime: no command from a state older than this")

@@ -106,7 +106,7 @@ class QpSolution:
 class QpFailure(ClimbError):
     """The solver found no solution; ``problem`` is the failing QP (save it, replay it)."""
 
-    def __init__(self, problem: QpProblem, status: int, solver: str, detail: str = ""):
+    def __init__(self, problem: QpProblem | None, status: int, solver: str, detail: str = ""):
         self.problem = problem
         self.status = status
         self.solver = solver
@@ -134,15 +134,27 @@ class DaqpSolver:
         np.clip(lower, -DAQP_INF, DAQP_INF, out=lower)
         sense = np.zeros(len(upper), dtype=np.int32)
         sense[problem.n:][problem.is_eq] = _SENSE_EQUALITY
+        try:
+            return self.solve_arrays(problem.H, problem.g, problem.A, upper, lower, sense)
+        except QpFailure as failure:
+            failure.problem = problem
+            raise
+
+    def solve_arrays(self, H: np.ndarray, g: np.ndarray, A: np.ndarray, upper: np.ndarray, lower: np.ndarray,
+                     sense: np.ndarray) -> QpSolution:
+        """daqp on arrays already in its layout: ``upper`` / ``lower`` hold the n variable bounds
+        then the m row bounds, clipped to +-DAQP_INF; ``sense`` (n + m,) int32. The hot path of
+        :class:`controller_node.wholebody.WholeBodyQP` (its workspace arrays, no copies). A failure
+        raises :class:`QpFailure` with ``problem`` None (the caller attaches it)."""
         t0 = time.perf_counter()
         x, _fval, exitflag, info = self._daqp.solve(
-            problem.H, problem.g, problem.A, upper, lower, sense,
-            time_limit=self.time_limit_s, iter_limit=self.iter_limit)
+            H, g, A, upper, lower, sense, time_limit=self.time_limit_s, iter_limit=self.iter_limit)
         elapsed = time.perf_counter() - t0
-        solution = QpSolution(np.asarray(x), int(exitflag), elapsed, int(info.get("iterations", 0)), self.name)
-        if exitflag < 1 or not np.all(np.isfinite(solution.x)):
-            raise QpFailure(problem, int(exitflag), self.name)
-        return solution
+        exitflag = int(exitflag)
+        x = np.asarray(x)
+        if exitflag < 1 or not np.isfinite(x).all():
+            raise QpFailure(None, exitflag, self.name)
+        return QpSolution(x, exitflag, elapsed, int(info.get("iterations", 0)), self.name)
 
 
 class ProxsuiteSolver:

@@ -22,6 +22,9 @@ class TaskRows:
     drift: np.ndarray  # (k,) Jdot v
     a_des: np.ndarray  # (k,)
     weights: np.ndarray  # (k,)
+    #: set when J is the identity on these qdd columns (zero elsewhere): the QP adds the task
+    #: to the diagonal directly
+    columns: slice | None = None
 
 
 class KinematicsView:
@@ -99,6 +102,7 @@ class PostureTask(Task):
         self.a_joints = np.zeros(self.na)
         self._J = np.hstack([np.zeros((self.na, 6)), np.eye(self.na)])
         self.joint_weights = np.ones(self.na)
+        self._zero = np.zeros(self.na)
 
     def set_target(self, q_joints, v_joints=None, a_joints=None) -> None:
         self.q_joints = np.asarray(q_joints, float)
@@ -109,7 +113,7 @@ class PostureTask(Task):
         error = self.q_joints - view.q[7:]
         self.last_error = float(np.linalg.norm(error))
         a_des = self.a_joints + _damping(self.stiffness) * (self.v_joints - view.v[6:]) + self.stiffness * error
-        return TaskRows(self._J, np.zeros(self.na), a_des, self.weight * self.joint_weights)
+        return TaskRows(self._J, self._zero, a_des, self.weight * self.joint_weights, slice(6, 6 + self.na))
 
 
 class BaseOrientationTask(Task):
@@ -133,7 +137,7 @@ class BaseOrientationTask(Task):
         error = pin.log3(R.T @ self.R_world_base)
         self.last_error = float(np.linalg.norm(error))
         a_des = _damping(self.stiffness) * (self.omega_in_base - view.v[3:6]) + self.stiffness * error
-        return TaskRows(self._J, np.zeros(3), a_des, np.full(3, self.weight))
+        return TaskRows(self._J, np.zeros(3), a_des, np.full(3, self.weight), slice(3, 6))
 
 
 class FrameTask(Task):

@@ -20,15 +20,15 @@ regularisations keep H positive definite. ``build()`` returns the problem as a v
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
-from .constraints import (GRIP_DIRECTIONS, ActiveContact, CollisionAvoidance, DamperRow, cross,
+from .constraints import (GRIP_DIRECTIONS, ActiveContact, CollisionAvoidance, DamperBatch, DamperRow, cross,
                           joint_acceleration_bounds, skew)
 from .params import ControllerParams
-from .qp import QpProblem, QpSolution, make_solver
+from .qp import _SENSE_EQUALITY, DAQP_INF, DaqpSolver, QpFailure, QpProblem, QpSolution, make_solver
 from .tasks import KinematicsView, Task
 
 
@@ -40,14 +40,137 @@ class ContactResult:
     normal_force: float  # [N] total along the surface normals (unilateral) / |force| (grasp)
 
 
-@dataclass
 class WholeBodyResult:
-    qdd: np.ndarray  # (nv,) [m/s^2, rad/s^2]
-    tau: np.ndarray  # (nv-6,) [N m]
-    contacts: dict[str, ContactResult]
-    solution: QpSolution
-    problem: QpProblem
-    dampers: list[DamperRow] = field(default_factory=list)
+    """One solved tick: ``qdd`` (nv,) [m/s^2, rad/s^2], ``tau`` (nv-6,) [N m], per-limb
+    :class:`ContactResult`, the :class:`QpSolution`, the damper rows and the QP.
+
+    ``problem`` is materialised on first access (a copy of the reused workspace): read it before
+    the next ``build`` / ``solve`` of the same :class:`WholeBodyQP` (the controller's next tick),
+    later access raises ``RuntimeError`` instead of returning another tick's matrices.
+    """
+
+    __slots__ = ("qdd", "tau", "contacts", "solution", "_problem", "_source", "_batch", "_dampers")
+
+    def __init__(self, qdd: np.ndarray, tau: np.ndarray, contacts: dict[str, ContactResult],
+                 solution: QpSolution, problem: QpProblem | None, dampers=None, source=None):
+        self.qdd = qdd
+        self.tau = tau
+        self.contacts = contacts
+        self.solution = solution
+        self._problem = problem
+        self._source = source  # (workspace, generation) when problem is None
+        self._batch = dampers if isinstance(dampers, DamperBatch) else None
+        self._dampers = None if self._batch is not None else list(dampers or [])
+
+    @property
+    def problem(self) -> QpProblem:
+        if self._problem is None:
+            workspace, generation = self._source
+            if workspace.generation != generation:
+                raise RuntimeError("the QP of this result was overwritten by a later build; read "
+                                   "result.problem before the next tick")
+            self._problem = workspace.snapshot()
+        return self._problem
+
+    @property
+    def dampers(self) -> list[DamperRow]:
+        if self._dampers is None:
+            self._dampers = self._batch.as_rows()
+        return self._dampers
+
+
+class _Workspace:
+    """Preallocated QP arrays for one active-contact set (reused across ticks).
+
+    Layout (same rows, same order as :meth:`WholeBodyQP.build_reference`): dynamics base rows,
+    torque-limit rows (together ``[M, -J_c' Phi]``), 6 held-contact rows per contact, the force
+    rows of each contact (grip directions / per-point normals + total), then up to ``capacity``
+    damper rows. Bounds of variables and rows share ``bu`` / ``bl`` (daqp's layout, +-DAQP_INF
+    for free); constant blocks (force rows, their sparsity, equality flags) are filled once.
+    """
+
+    def __init__(self, wb: "WholeBodyQP", contacts: list[ActiveContact]):
+        p = wb.params.qp
+        nv, na = wb.nv, wb.na
+        self.contacts = tuple(contacts)
+        n = nv + sum(c.n_variables for c in contacts)
+        self.n = n
+        cap = wb.collision.capacity if (wb.collision is not None and wb.params.collision.enabled) else 0
+        variable_blocks = [("qdd", 0, nv)]
+        row_blocks = [("dynamics_base", 0, 6), ("torque_limits", 6, nv)]
+        layout = []
+        r, start = nv, nv
+        for c in contacts:
+            k = c.n_variables
+            layout.append([c, start, start + k, r])
+            variable_blocks.append((f"force:{c.limb}", start, start + k))
+            row_blocks.append((f"contact:{c.limb}", r, r + 6))
+            r += 6
+            start += k
+        eq_rows = [(0, 6)] + [(entry[3], entry[3] + 6) for entry in layout]
+        A_static = []
+        for entry in layout:
+            c, s0, s1 = entry[0], entry[1], entry[2]
+            entry.append(r)  # first force row
+            if c.bilateral:
+                A_static.append((r, r + len(GRIP_DIRECTIONS), s0, s0 + 3, GRIP_DIRECTIONS))
+                row_blocks.append(("contact_force", r, r + len(GRIP_DIRECTIONS)))
+                r += len(GRIP_DIRECTIONS)
+            else:
+                normals = c.normal_rows()
+                kp = normals.shape[0]
+                A_static.append((r, r + kp, s0, s1, normals))
+                A_static.append((r + kp, r + kp + 1, s0, s1, normals.sum(axis=0)[None]))
+                row_blocks.append(("contact_force", r, r + kp))
+                row_blocks.append(("contact_force", r + kp, r + kp + 1))
+                r += kp + 1
+        self.layout = [tuple(entry) for entry in layout]  # (contact, var start, var stop, row, force row)
+        self.m_fixed = r
+        m_max = r + cap
+        self.variable_blocks = variable_blocks
+        self.row_blocks = row_blocks
+        self.H = np.zeros((n, n))
+        self.H_diag = self.H.reshape(-1)[::n + 1]  # view on the diagonal
+        self.g = np.zeros(n)
+        self.A = np.zeros((m_max, n))
+        for r0, r1, c0, c1, block in A_static:
+            self.A[r0:r1, c0:c1] = block
+        self.bu = np.full(n + m_max, DAQP_INF)
+        self.bl = np.full(n + m_max, -DAQP_INF)
+        self.bu[:6], self.bl[:6] = p.base_acceleration_bound, -p.base_acceleration_bound
+        for c, s0, s1, _, _ in self.layout:
+            if not c.bilateral:
+                self.bl[s0:s1] = 0.0  # generator weights >= 0
+        self.is_eq = np.zeros(m_max, dtype=bool)
+        for r0, r1 in eq_rows:
+            self.is_eq[r0:r1] = True
+        self.sense = np.zeros(n + m_max, dtype=np.int32)
+        self.sense[n:][self.is_eq] = _SENSE_EQUALITY
+        self.reg = np.full(n, p.force_regularization)
+        self.reg[:nv] = p.acceleration_regularization
+        self.torque_scale = (p.torque_regularization / wb.effort ** 2)[:, None] if p.torque_regularization > 0 else None
+        self.Dw = np.empty((na, n))
+        self.m = self.m_fixed
+        self.generation = 0
+
+    def matches(self, contacts: list[ActiveContact]) -> bool:
+        mine = self.contacts
+        if len(mine) != len(contacts):
+            return False
+        for a, b in zip(mine, contacts):
+            if a is not b:
+                return False
+        return True
+
+    def snapshot(self) -> QpProblem:
+        """The current problem as an independent value (infinite bounds as +-DAQP_INF)."""
+        n, m = self.n, self.m
+        row_blocks = list(self.row_blocks)
+        if m > self.m_fixed:
+            row_blocks.append(("collision", self.m_fixed, m))
+        return QpProblem(self.H.copy(), self.g.copy(), self.bl[:n].copy(), self.bu[:n].copy(), self.A[:m].copy(),
+                         self.bl[n:n + m].copy(), self.bu[n:n + m].copy(), self.is_eq[:m].copy(),
+                         list(self.variable_blocks), row_blocks)
 
 
 class WholeBodyQP:
@@ -70,6 +193,9 @@ class WholeBodyQP:
         self.solver = make_solver(params.qp.solver, params.qp.time_limit_s, params.qp.iter_limit)
         self._zero_v = np.zeros(model.nv)
         self._dampers: list[DamperRow] = []
+        self._batch = DamperBatch.empty(model.nv)
+        self._workspace: _Workspace | None = None
+        self._contact_layout: list = []
         self.dt = params.control_period_s
 
     # ------------------------------------------------------------------------------------
@@ -90,20 +216,26 @@ class WholeBodyQP:
     def _contact_kinematics(self, contact: ActiveContact):
         """Jacobian (6, nv) of the contact reference point, its drift, and the wrench map."""
         model, data = self.model, self.data
-        oMf = data.oMf[contact.frame_id]
-        R = oMf.rotation
+        fid = contact.frame_id
+        R = data.oMf[fid].rotation
         r = R @ contact.reference_in_frame
-        J = pin.getFrameJacobian(model, data, contact.frame_id, pin.LOCAL_WORLD_ALIGNED).copy()
+        J = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)  # a new array
         J[:3] -= skew(r) @ J[3:]
-        vel = pin.getFrameVelocity(model, data, contact.frame_id, pin.LOCAL_WORLD_ALIGNED).vector
-        acc = pin.getFrameClassicalAcceleration(model, data, contact.frame_id, pin.LOCAL_WORLD_ALIGNED).vector
-        omega = vel[3:]
-        drift = acc.copy()
-        drift[:3] += cross(acc[3:], r) + cross(omega, cross(omega, r))
+        wx, wy, wz = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).angular.tolist()
+        acc = pin.getFrameClassicalAcceleration(model, data, fid, pin.LOCAL_WORLD_ALIGNED).vector
+        ax, ay, az, bx, by, bz = acc.tolist()
+        rx, ry, rz = r.tolist()
+        # drift of the point: a + alpha x r + w x (w x r)
+        cx, cy, cz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx  # w x r
+        drift = np.array([ax + (by * rz - bz * ry) + (wy * cz - wz * cy),
+                          ay + (bz * rx - bx * rz) + (wz * cx - wx * cz),
+                          az + (bx * ry - by * rx) + (wx * cy - wy * cx), bx, by, bz])
         return J, drift, contact.wrench_map(R), R
 
-    def build(self, contacts: list[ActiveContact], tasks: list[Task],
-              disabled_pairs: set[tuple[str, str]] | frozenset = frozenset()) -> QpProblem:
+    def build_reference(self, contacts: list[ActiveContact], tasks: list[Task],
+                        disabled_pairs: set[tuple[str, str]] | frozenset = frozenset()) -> QpProblem:
+        """The straightforward build (fresh arrays, one block at a time, per-pair dampers): the
+        reference the workspace path (:meth:`build`) is tested against. Same rows, same order."""
         p = self.params.qp
         nv, na = self.nv, self.na
         data = self.data
@@ -189,7 +321,7 @@ class WholeBodyQP:
             blocks.append(("contact_force", row, lo, hi, False))
         self._dampers = []
         if self.collision is not None and self.params.collision.enabled:
-            self._dampers = self.collision.rows(self.model, data, v, self.dt, disabled_pairs)
+            self._dampers = self.collision.rows_reference(self.model, data, v, self.dt, disabled_pairs)
             if self._dampers:
                 rows = np.zeros((len(self._dampers), n))
                 rows[:, :nv] = np.array([d.row for d in self._dampers])
@@ -225,7 +357,7 @@ class WholeBodyQP:
                 r0 += b - a
         relaxed = QpProblem(problem.H, problem.g, lb, ub, problem.A[keep], problem.lower[keep], problem.upper[keep],
                             problem.is_eq[keep], problem.variable_blocks, blocks)
-        return self._result(relaxed, self.solver.solve(relaxed))
+        return self._result(self.solver.solve(relaxed), problem=relaxed)
 
     def solve_equalities(self, contacts: list[ActiveContact], tasks: list[Task]) -> WholeBodyResult:
         """Fallback when the QP is infeasible: the same cost with only the equality rows (base
@@ -245,30 +377,148 @@ class WholeBodyQP:
         rhs = np.concatenate([-problem.g, b])
         x = np.linalg.solve(K, rhs)[:n]
         solution = QpSolution(x, 0, 0.0, 0, "kkt")
-        return self._result(problem, solution)
+        return self._result(solution, problem=problem)
+
+    def _fill(self, contacts: list[ActiveContact], tasks: list[Task],
+              disabled_pairs: set[tuple[str, str]] | frozenset) -> _Workspace:
+        """Fill the workspace of this contact set in place for the current Pinocchio terms."""
+        ws = self._workspace
+        if ws is None or not ws.matches(contacts):
+            ws = self._workspace = _Workspace(self, contacts)
+        ws.generation += 1
+        p = self.params.qp
+        nv = self.nv
+        n = ws.n
+        data = self.data
+        v = self.view.v
+        q = self.view.q
+        A, bu, bl = ws.A, ws.bu, ws.bl
+        h = data.nle
+        # dynamics rows [M, -J_c' Phi] x = -h (base rows equal, actuated rows bounded: torque limits)
+        A[:nv, :nv] = data.M
+        bu[n:n + 6] = -h[:6]
+        bl[n:n + 6] = -h[:6]
+        np.subtract(self.tau_max, h[6:], out=bu[n + 6:n + nv])
+        np.subtract(-self.tau_max, h[6:], out=bl[n + 6:n + nv])
+        # joint limits as bounds on qdd
+        bl[6:nv], bu[6:nv] = joint_acceleration_bounds(
+            q[7:], v[6:], self.q_lower, self.q_upper, self.v_limit, p.joint_limit_horizon_s,
+            p.joint_acceleration_bound, p.joint_limit_margin)
+        layout = []
+        kv = p.contact_velocity_gain
+        for c, s0, s1, r, rf in ws.layout:
+            Jc, drift, phi, _R = self._contact_kinematics(c)
+            A[:nv, s0:s1] = -(Jc.T @ phi)
+            A[r:r + 6, :nv] = Jc
+            rhs = bu[n + r:n + r + 6]
+            np.multiply(Jc @ v, -kv, out=rhs)
+            rhs -= drift
+            bl[n + r:n + r + 6] = rhs
+            if c.bilateral:
+                force, torque = c.grip_limits()
+                bu[s0:s0 + 3] = force
+                bu[s0 + 3:s1] = torque
+                bl[s0:s0 + 3] = -force
+                bl[s0 + 3:s1] = -torque
+                g_rows = len(GRIP_DIRECTIONS)
+                bu[n + rf:n + rf + g_rows] = force
+                bl[n + rf:n + rf + g_rows] = -force
+            else:
+                kp = c.points_in_frame.shape[0]
+                bl[n + rf:n + rf + kp] = c.min_normal_force * c.scale
+                lo_total, hi_total = c.normal_force_window()
+                bl[n + rf + kp] = lo_total
+                bu[n + rf + kp] = min(hi_total, DAQP_INF)
+            layout.append((c, slice(s0, s1), phi, Jc))
+        self._contact_layout = layout
+        # cost: torque regularisation (tau affine in x: tau = D x + h_a, D = A[6:nv]) + tasks
+        H, g = ws.H, ws.g
+        if ws.torque_scale is not None:
+            Da = A[6:nv]
+            np.multiply(Da, ws.torque_scale, out=ws.Dw)
+            np.matmul(Da.T, ws.Dw, out=H)
+            np.matmul(ws.Dw.T, h[6:], out=g)
+        else:
+            H.fill(0.0)
+            g.fill(0.0)
+        dense = []
+        for task in tasks:
+            rows = task.rows(self.view)
+            if rows.columns is not None:  # J selects qdd[columns]: J' W J and J' W e are diagonal
+                cols = rows.columns
+                ws.H_diag[cols] += rows.weights
+                g[cols] += rows.weights * (rows.drift - rows.a_des)
+            else:
+                dense.append(rows)
+        if dense:
+            J = np.concatenate([r.J for r in dense]) if len(dense) > 1 else dense[0].J
+            w = np.concatenate([r.weights for r in dense]) if len(dense) > 1 else dense[0].weights
+            e = (np.concatenate([r.drift - r.a_des for r in dense]) if len(dense) > 1
+                 else dense[0].drift - dense[0].a_des)
+            Jw = J * w[:, None]
+            H[:nv, :nv] += J.T @ Jw
+            g[:nv] += Jw.T @ e
+        ws.H_diag += ws.reg
+        # velocity dampers
+        m = ws.m_fixed
+        if self.collision is not None and self.params.collision.enabled:
+            batch = self.collision.compute(self.model, data, v, self.dt, disabled_pairs)
+            k = len(batch)
+            if k:
+                A[m:m + k, :nv] = batch.rows
+                bl[n + m:n + m + k] = batch.lower
+                m += k
+        else:
+            batch = DamperBatch.empty(nv)
+        self._batch = batch
+        ws.m = m
+        return ws
+
+    def build(self, contacts: list[ActiveContact], tasks: list[Task],
+              disabled_pairs: set[tuple[str, str]] | frozenset = frozenset()) -> QpProblem:
+        """The QP of this tick as an independent value (a copy of the reused workspace)."""
+        ws = self._fill(contacts, tasks, disabled_pairs)
+        self._dampers = self._batch.as_rows()
+        return ws.snapshot()
 
     def solve(self, contacts: list[ActiveContact], tasks: list[Task],
               disabled_pairs: set[tuple[str, str]] | frozenset = frozenset()) -> WholeBodyResult:
-        problem = self.build(contacts, tasks, disabled_pairs)
-        solution = self.solver.solve(problem)  # raises QpFailure
-        return self._result(problem, solution)
+        ws = self._fill(contacts, tasks, disabled_pairs)
+        solver = self.solver
+        if isinstance(solver, DaqpSolver):  # straight from the workspace arrays
+            n, m = ws.n, ws.m
+            try:
+                solution = solver.solve_arrays(ws.H, ws.g, ws.A[:m], ws.bu[:n + m], ws.bl[:n + m], ws.sense[:n + m])
+            except QpFailure as failure:
+                failure.problem = ws.snapshot()
+                raise
+            return self._result(solution, batch=self._batch, source=(ws, ws.generation))
+        problem = ws.snapshot()
+        return self._result(solver.solve(problem), problem=problem, batch=self._batch)
 
-    def _result(self, problem: QpProblem, solution: QpSolution) -> WholeBodyResult:
+    def _result(self, solution: QpSolution, problem: QpProblem | None = None, batch=None,
+                source=None) -> WholeBodyResult:
         x = solution.x
-        qdd = x[:self.nv]
-        generalized = np.zeros(self.nv)
+        nv = self.nv
+        qdd = x[:nv]
         results: dict[str, ContactResult] = {}
         for c, sl, phi, Jc in self._contact_layout:
             wrench = phi @ x[sl]
-            generalized += Jc.T @ wrench
             if c.bilateral:
                 forces = np.zeros((0, 3))
                 normal = float(np.linalg.norm(wrench[:3]))
             else:
                 kpts, _, ng = c.generators.shape
-                lam = x[sl].reshape(kpts, ng)
-                forces = np.einsum("kij,kj->ki", c.generators, lam)
+                forces = np.matmul(c.generators, x[sl].reshape(kpts, ng, 1))[:, :, 0]
                 normal = float(np.sum(forces * c.normals_in_world))
             results[c.limb] = ContactResult(c.limb, wrench, forces, normal)
-        tau = self.data.M[6:] @ qdd + self.data.nle[6:] - generalized[6:]
-        return WholeBodyResult(qdd.copy(), tau, results, solution, problem, list(self._dampers))
+        data = self.data
+        if source is not None:  # the workspace's actuated dynamics rows: tau = [M_a, -(J_c' Phi)_a] x + h_a
+            tau = source[0].A[6:nv] @ x + data.nle[6:]
+        else:
+            generalized = np.zeros(nv)
+            for c, sl, phi, Jc in self._contact_layout:
+                generalized += Jc.T @ results[c.limb].wrench_in_world
+            tau = data.M[6:] @ qdd + data.nle[6:] - generalized[6:]
+        return WholeBodyResult(qdd.copy(), tau, results, solution, problem,
+                               batch if batch is not None else list(self._dampers), source)
