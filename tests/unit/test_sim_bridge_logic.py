@@ -51,6 +51,29 @@ def test_bad_commands_name_the_problem(names, modes, values, field, rule):
     assert info.value.field == field and rule in info.value.rule
 
 
+@pytest.mark.parametrize("modes, values, field, rule", [
+    ([TORQUE, TORQUE, TORQUE], [1.0, math.nan, 3.0], "joint_command.values[1]", "finite"),
+    ([TORQUE, 9, TORQUE], [1.0, 2.0, 3.0], "joint_command.modes[1]", "unknown mode 9"),
+    ([TORQUE, TORQUE, PWM], [1.0, 2.0, -1.5], "joint_command.values[2]", "PWM duty"),
+    ([TORQUE, True, TORQUE], [1.0, 2.0, 3.0], "joint_command.modes[1]", "unknown mode True"),
+])
+def test_a_full_command_in_joint_order_is_checked_like_any_other(modes, values, field, rule):
+    """Every joint in the robot's order (what controllers send) takes a vectorised path: same
+    result, same errors as the per-joint path."""
+    import array
+
+    good = validate_joint_command(list(NAMES), array.array("B", [PWM, TORQUE, POSITION]),
+                                  array.array("d", [0.5, -4.0, 0.2]), NAMES, stamp_ns=15)
+    reordered = validate_joint_command(["knee", "ankle", "hip"], [TORQUE, POSITION, PWM], [-4.0, 0.2, 0.5], NAMES,
+                                       stamp_ns=15)
+    for cmd in (good, reordered):
+        assert list(cmd.modes) == [PWM, TORQUE, POSITION] and list(cmd.values) == [0.5, -4.0, 0.2]
+        assert cmd.stamp_ns == 15 and cmd.modes.dtype == np.uint8
+    with pytest.raises(SpecError) as info:
+        validate_joint_command(list(NAMES), modes, values, NAMES)
+    assert info.value.field == field and rule in info.value.rule
+
+
 def test_a_partial_command_damps_the_joints_it_does_not_name():
     cmd = validate_joint_command(["knee"], ["position"], [0.3], NAMES, stamp_ns=10)
     assert list(cmd.modes) == [DAMPING, POSITION, DAMPING] and cmd.values[1] == 0.3 and cmd.stamp_ns == 10

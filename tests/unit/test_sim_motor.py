@@ -93,6 +93,30 @@ def test_stiff_pwm_against_a_wall_trips_but_torque_modes_are_current_regulated()
     assert tau[1] == pytest.approx(20.0) and not bank.tripped(0.004)[1]  # held at the current limit
 
 
+def test_torques_are_constant_over_a_tick_only_for_state_free_commands():
+    """The PyBullet backend computes the torques once per tick when torques_constant() holds; it
+    must not hold when a mode reads the joint state or a driver is cut."""
+    params = load_bridge_params().actuation
+    p = MotorParams.uniform(2, supply_voltage=V, resistance=R, torque_constant=KT, gear_ratio=N,
+                            current_limit=10.0, trip_hold_off_s=HOLD)
+    bank = ActuatorBank(("a", "b"), np.array([30.0, 30.0]), p, params, implicit_position=True)
+    for modes, constant in (([TORQUE, TORQUE], True), ([TORQUE, POSITION], True), ([TORQUE, DAMPING], False),
+                            ([PWM, TORQUE], False)):
+        bank.set_command(ActuatorCommand(np.array(modes, dtype=np.uint8), np.array([5.0, 0.1])))
+        assert bank.torques_constant(0.0) is constant, modes
+        if constant:  # same torques whatever the joint state and the time within the tick
+            first, _ = bank.torques(np.zeros(2), np.zeros(2), 0.0, 0.001)
+            later, _ = bank.torques(np.array([0.3, -0.2]), np.array([4.0, 1.0]), 0.004, 0.001)
+            assert np.array_equal(first, later)
+    bank.set_command(ActuatorCommand(np.array([PWM, TORQUE], dtype=np.uint8), np.array([0.5, 5.0])))
+    for k in range(3):  # 0.5 duty at stall: 48 A > 10 A for 2 ms trips joint a
+        bank.torques(np.zeros(2), np.zeros(2), k * 0.001, 0.001)
+    bank.set_command(ActuatorCommand(np.array([TORQUE, TORQUE], dtype=np.uint8), np.array([5.0, 5.0])))
+    assert not bank.torques_constant(0.003)  # joint a is still cut: its torque changes when power returns
+    assert bank.torques(np.zeros(2), np.zeros(2), 0.003, 0.001)[0][0] == 0.0
+    assert bank.torques_constant(0.003 + HOLD)
+
+
 def test_motor_params_validation_and_table():
     with pytest.raises(SpecError, match="resistance"):
         MotorParams.uniform(2, supply_voltage=V, resistance=0.0, torque_constant=KT, gear_ratio=N,

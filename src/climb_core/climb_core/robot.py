@@ -181,7 +181,7 @@ class MotorSpec:
     torque_constant: float  # [N m/A] motor side (back-EMF constant, V s/rad, has the same value)
     gear_ratio: float  # [-] motor turns per joint turn
     current_limit: float  # [A] driver over-current threshold
-    trip_hold_off_s: float  # [s] time above current_limit before the driver cuts power (trips)
+    trip_hold_off_s: float  # [s] after an over-current trip, the driver keeps the power cut this long, then restores it
 
     @property
     def max_joint_torque(self) -> float:

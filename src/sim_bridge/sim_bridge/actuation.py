@@ -63,6 +63,9 @@ class ActuatorBank:
         self._damping = (modes == DAMPING).astype(float)
         self._pwm = modes == PWM
         self._any_pwm = bool(self._pwm.any())
+        # TORQUE joints (and implicit POSITION ones, tau = 0 here) only: the torques do not depend on
+        # the joint state, so they are the same for every physics step of a tick (see torques_constant)
+        self._state_independent = not (self._any_pwm or self._damping.any() or self._position.any())
 
     def torques(self, q: np.ndarray, qdot: np.ndarray, time: float, dt: float) -> tuple[np.ndarray, list[TripEvent]]:
         """Joint torques [N m] for this physics step at sim ``time`` [s]; and over-current trips."""
@@ -84,6 +87,13 @@ class ActuatorBank:
         tau[flowing == 0.0] = 0.0  # tripped drivers deliver nothing
         self.tau = tau
         return tau, trips
+
+    def torques_constant(self, time: float) -> bool:
+        """True when :meth:`torques` returns the same torques, and leaves the motors in the same
+        state, for every physics step from ``time`` [s] on until the command changes: no joint
+        depends on the joint state (no PWM, DAMPING or explicit POSITION) and every driver is
+        powered (a trip can only happen in PWM, and power never goes away by itself)."""
+        return self._state_independent and bool(np.all(self.motors.powered(time)))
 
     def position_force_limits(self) -> np.ndarray:
         """(n,) [N m] torque cap of a position servo: effort limit and current limit."""

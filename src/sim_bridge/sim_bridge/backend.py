@@ -25,7 +25,7 @@ import abc
 import heapq
 import itertools
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -169,13 +169,18 @@ class Backend(abc.ABC):
         """Validate (length, modes, finite, PWM range: SpecError otherwise) and store ``cmd``."""
         self._apply(validate_actuator_command(cmd, len(self.joint_names)))
 
-    def step(self, cmd: ActuatorCommand | None = None) -> SimState:
-        """Apply ``cmd`` (None: keep the last one), run due requests, one control period, observe."""
+    def step(self, cmd: ActuatorCommand | None = None,
+             after_advance: Callable[[int], None] | None = None) -> SimState:
+        """Apply ``cmd`` (None: keep the last one), run due requests, one control period, observe.
+        ``after_advance(stamp_ns)`` runs once the physics has reached the new time, before the
+        sensors are read (the node publishes /clock there)."""
         if cmd is not None:
             self.apply_command(cmd)
         self._run_due_requests()
         self._advance()
         self.stamp_ns += self.control_period_ns
+        if after_advance is not None:
+            after_advance(self.stamp_ns)
         return self.observe()
 
     @property

@@ -67,6 +67,8 @@ class SimBridge:
         self.lost_ticks = 0
         self.watchdog_ticks = 0
         self._diagnostics: list[Diagnostic] = []
+        # called with the new stamp [ns] once the physics reached it, before the sensors are read
+        self.after_advance: Callable[[int], None] | None = None
         self._step_times: deque[float] = deque(maxlen=1000)
         self._next_summary_ns = 0
 
@@ -181,7 +183,8 @@ class SimBridge:
     # -- common ---------------------------------------------------------------------------------
     def _step(self, cmd: ActuatorCommand) -> SimState:
         start = _time.perf_counter()
-        self.state = self.backend.step(cmd)
+        self.backend._apply(cmd)  # validated at the door (offer_*) or built valid (damping)
+        self.state = self.backend.step(after_advance=self.after_advance)
         self._step_times.append(_time.perf_counter() - start)
         self.ticks += 1
         self._collect_events()

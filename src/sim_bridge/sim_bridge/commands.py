@@ -75,6 +75,9 @@ def validate_joint_command(names: Sequence[str], modes: Sequence[object], values
                            joint_names: Sequence[str], stamp_ns: int = 0,
                            joint_index: dict[str, int] | None = None) -> ActuatorCommand:
     """Named command -> ActuatorCommand in ``joint_names`` order; unnamed joints are DAMPING."""
+    fast = _every_joint_in_order(names, modes, values, joint_names, stamp_ns)
+    if fast is not None:
+        return fast
     f = "joint_command"
     names = list(names)
     modes = list(modes)
@@ -105,6 +108,27 @@ def validate_joint_command(names: Sequence[str], modes: Sequence[object], values
         out_modes[j] = code
         out_values[j] = value
     return ActuatorCommand(out_modes, out_values, int(stamp_ns))
+
+
+def _every_joint_in_order(names: Sequence[str], modes: Sequence[object], values: Sequence[float],
+                          joint_names: Sequence[str], stamp_ns: int) -> ActuatorCommand | None:
+    """The usual command (every joint, in ``joint_names`` order, integer modes) checked with numpy;
+    None when it is not of that form or has a problem (the per-joint path then names it)."""
+    n = len(joint_names)
+    if len(names) != n or len(modes) != n or len(values) != n or list(names) != list(joint_names):
+        return None
+    try:
+        mode_arr = np.asarray(modes)
+        value_arr = np.array(values, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if mode_arr.shape != (n,) or mode_arr.dtype.kind not in "iu" or value_arr.shape != (n,):
+        return None
+    if n and (mode_arr.min() < 0 or mode_arr.max() > max(MODE_NAMES)):
+        return None
+    if not np.isfinite(value_arr).all() or np.any((mode_arr == PWM) & (np.abs(value_arr) > 1.0)):
+        return None
+    return ActuatorCommand(mode_arr.astype(np.uint8), value_arr, int(stamp_ns))
 
 
 def validate_actuator_command(cmd: ActuatorCommand, n_joints: int) -> ActuatorCommand:

@@ -22,9 +22,14 @@ class PhysicsParams:
     control_period_s: float = param(0.005, unit="s", description="one control tick of physics", min=1e-5, max=1.0)
     gravity: float = param(9.81, unit="m/s^2", description="gravity magnitude along -z", min=0.0)
     solver_iterations: int = param(50, unit="-", description="PyBullet numSolverIterations", min=1)
-    self_collision: bool = param(True, unit="-", description="robot self-collision (touching pairs filtered)")
+    self_collision: bool = param(True, unit="-", description="robot self-collision between chains (touching "
+                                 "pairs filtered)")
     self_collision_margin: float = param(0.002, unit="m", min=0.0,
                                          description="pairs closer than this at the reference posture are filtered")
+    self_collision_same_chain: bool = param(False, unit="-", description="also check two links of one chain "
+                                            "(one leg, one arm with its hand, the trunk) against each other")
+    self_collision_fingers: bool = param(False, unit="-", description="also check the finger links against "
+                                         "the rest of the robot (they always collide with the environment)")
 
 
     @property
@@ -66,8 +71,10 @@ class ActuationParams:
                                  description="POSITION in PyBullet: implicit position motor, velocity gain")
     overcurrent_trip_delay_s: float = param(0.002, unit="s", min=0.0,
                                             description="current above the limit this long trips the driver")
-    finger_position_gain: float = param(0.2, unit="-", min=0.0, max=1.0, description="finger servo "
-                                        "(PyBullet implicit position motor, force capped at the finger effort)")
+    finger_bandwidth: float = param(150.0, unit="rad/s", min=0.0, max=1000.0, description="finger servo: "
+                                    "explicit joint PD, kp = m w^2, kd = 2 zeta m w with m the finger's apparent "
+                                    "inertia; torque capped at the finger effort limit")
+    finger_damping_ratio: float = param(1.0, unit="-", min=0.0, max=5.0, description="finger servo damping ratio")
 
 
 @dataclass(frozen=True)

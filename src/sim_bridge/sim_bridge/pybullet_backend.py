@@ -74,6 +74,7 @@ class PyBulletBackend(Backend):
         self._imu_acc = np.zeros(3)
         self.physics_time_s = 0.0  # [s] wall time of the last tick's stepSimulation calls
         self._kinematics = None  # base kinematics of the current physics state
+        self._contacts = None  # contact points of the robot at the current physics state
 
     # ============================================================================ world building
     def _connect(self) -> None:
@@ -110,7 +111,9 @@ class PyBulletBackend(Backend):
         self._connect()
         cid = self.client
         self.env_bodies = self.env.add_to_pybullet(cid)
+        self._replace_ground_plane()
         self.ground_body = self.env_bodies.get("ground", -1)
+        self._env_body_set = set(self.env_bodies.values())
         self._load_robot()
         q0, hands_to_latch = initial_configuration(self.robot, self.env, request.q,
                                                    request.initial_posture or self.params.initial_posture)
@@ -186,7 +189,6 @@ class PyBulletBackend(Backend):
             p.enableJointForceTorqueSensor(body, j, True, physicsClientId=cid)
             self.ft_joints[sensor] = j
         self._ft_order = list(self.ft_joints)
-        self._read = self._act + self._fingers + [self.ft_joints[s] for s in self._ft_order]
         # limbs: the link of each contact surface and every link below the limb's last joint
         self.limb_link: dict[str, int] = {}
         self.limb_links: dict[str, set[int]] = {}
@@ -223,8 +225,60 @@ class PyBulletBackend(Backend):
                                       implicit_position=True)
         self._position_mask = np.zeros(len(self._act), dtype=bool)
         self._torque_sel = np.arange(len(self._act))
-        self._torque_idx = list(self._act)
+        self._torque_idx = list(self._act) + self._fingers
         self._filter_self_collisions(q_ref)
+        self._finger_gains()
+        self._prepare_sensing()
+
+    def _finger_gains(self) -> None:
+        """Finger servo gains from each finger joint's apparent inertia m = 1 / (M^-1)_jj at the
+        current (reference) posture: kp = m w^2, kd = 2 zeta m w. An explicit PD sized this way is
+        stable at 1 kHz on the light phalanges; PyBullet's implicit position motors would hold the
+        fingers stiffer, but their 14 solver rows on links ~1e4 times lighter than the body never
+        let the constraint solver converge early (they tripled the cost of a physics step)."""
+        n_f = len(self._fingers)
+        self.finger_kp = np.zeros(n_f)  # [N m/rad]
+        self.finger_kd = np.zeros(n_f)  # [N m s/rad]
+        self.finger_goal = self.finger_open.copy()  # [rad]
+        if not n_f:
+            return
+        p, cid, body = self.p, self.client, self.body
+        movable = [j for j in range(p.getNumJoints(body, physicsClientId=cid))
+                   if p.getJointInfo(body, j, physicsClientId=cid)[2] != p.JOINT_FIXED]
+        q = [st[0] for st in p.getJointStates(body, movable, physicsClientId=cid)]
+        M = np.asarray(p.calculateMassMatrix(body, q, physicsClientId=cid))
+        base_dofs = M.shape[0] - len(movable)  # 6 for a floating base
+        m_inv = np.diag(np.linalg.inv(M))
+        apparent = np.array([1.0 / m_inv[base_dofs + movable.index(j)] for j in self._fingers])  # [kg m^2]
+        a = self.params.actuation
+        self.finger_kp = apparent * a.finger_bandwidth ** 2
+        self.finger_kd = 2.0 * a.finger_damping_ratio * apparent * a.finger_bandwidth
+
+    def _replace_ground_plane(self) -> None:
+        """PyBullet's GEOM_PLANE has an infinite bounding box: every robot link overlaps it in the
+        broadphase and runs a narrowphase test against it every physics step. The ground becomes
+        the same finite box the planner's coal model uses (``Surface.primitive_half_extents``,
+        top face at z = 0), with the same friction; only links near the ground are tested."""
+        p, cid = self.p, self.client
+        for name, surface in self.env.surfaces.items():
+            if surface.shape != "plane" or name not in self.env_bodies:
+                continue
+            old = self.env_bodies[name]
+            dyn = p.getDynamicsInfo(old, -1, physicsClientId=cid)
+            p.removeBody(old, physicsClientId=cid)
+            half = surface.primitive_half_extents().tolist()
+            T = surface.T_world_primitive()
+            collision = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=cid)
+            visual = -1
+            if self.params.gui:
+                visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.5, 0.5, 0.5, 1.0],
+                                             physicsClientId=cid)
+            body = p.createMultiBody(baseMass=0.0, baseCollisionShapeIndex=collision, baseVisualShapeIndex=visual,
+                                     basePosition=T[:3, 3].tolist(),
+                                     baseOrientation=frames.matrix_to_quat(T[:3, :3]).tolist(), physicsClientId=cid)
+            p.changeDynamics(body, -1, lateralFriction=dyn[1], restitution=0.0, rollingFriction=0.0,
+                             spinningFriction=0.0, physicsClientId=cid)
+            self.env_bodies[name] = body
 
     def _subtree(self, joint: int) -> set[int]:
         out = {joint}
@@ -237,37 +291,66 @@ class PyBulletBackend(Backend):
                     changed = True
         return out
 
+    def _collision_chains(self) -> dict[int, str]:
+        """Link -> the kinematic chain it belongs to: a limb (the subtree of its first joint that no
+        other limb shares; G1: a leg from the hip, an arm from the shoulder, hand and fingers
+        included) or "trunk" (the rest: pelvis, waist, torso, head)."""
+        limbs = self.robot.config.limbs
+        chains = {link: "trunk" for link in self.link_index.values()}
+        for name, limb in limbs.items():
+            shared = {j for other, o in limbs.items() if other != name for j in o.joints}
+            own = [j for j in limb.joints if j not in shared]
+            if own:
+                for link in self._subtree(self.joint_index[own[0]]):
+                    chains[link] = name
+        return chains
+
     def _filter_self_collisions(self, q_ref: np.ndarray) -> None:
-        """Disable self-collision between links touching (or closer than the margin) at the
-        reference posture (FIELD_NOTES: siblings touching at rest are checked even with
-        EXCLUDE_ALL_PARENTS), between the links of one hand (fingers and palm: the grasp is a
-        constraint, their mutual contacts only cost time), and the config's ignore pairs."""
+        """Self-collision is checked only where it can matter (each pair PyBullet tests costs a
+        narrowphase test every physics step while their bounding boxes overlap):
+
+        - between links of different chains (legs, arms, trunk: a knee against the torso, a hand
+          against a thigh, leg against leg); two links of one chain are kept apart by the joint
+          limits (``physics.self_collision_same_chain`` turns them back on);
+        - not for the fingers (``physics.self_collision_fingers``): the grasp is a constraint and
+          they carry no load; they still collide with the environment; never inside one hand;
+        - not between links touching (or closer than the margin) at the reference posture
+          (FIELD_NOTES: siblings touching at rest are checked even with EXCLUDE_ALL_PARENTS), nor
+          the config's ignore pairs."""
         p, cid, body = self.p, self.client, self.body
+        ph = self.params.physics
         self._set_configuration(q_ref)
         n = p.getNumJoints(body, physicsClientId=cid)
         links = [-1] + list(range(n))
         has_shape = {link: bool(p.getCollisionShapeData(body, link, physicsClientId=cid)) for link in links}
-        margin = self.params.physics.self_collision_margin
+        margin = ph.self_collision_margin
         self.filtered_pairs: list[tuple[str, str]] = []
+        self.checked_pairs: list[tuple[str, str]] = []
         names = {idx: name for name, idx in self.link_index.items()}
         ignore = {frozenset(pair) for pair in self.robot.config.collision.ignore_pairs}
+        chains = self._collision_chains()
+        fingers = set().union(*(self._subtree(j) for j in self._fingers)) if self._fingers else set()
         hands = [self.limb_links[h] for h in HANDS if h in self.limb_links]
         for a_i, a in enumerate(links):
             for b in links[a_i + 1:]:
-                if not (has_shape[a] and has_shape[b]):
-                    continue
-                pair = frozenset((names[a], names[b]))
-                same_hand = any(a in hand and b in hand for hand in hands)  # a gripper's own parts
-                touching = same_hand or bool(p.getClosestPoints(body, body, margin, linkIndexA=a, linkIndexB=b,
-                                                                physicsClientId=cid))
-                if touching or pair in ignore:
+                if not (has_shape[a] and has_shape[b]) or self.parent_of.get(b) == a or self.parent_of.get(a) == b:
+                    continue  # nothing to collide, or parent / child (excluded by PyBullet)
+                pair = (names[a], names[b])
+                skip = frozenset(pair) in ignore or any(a in hand and b in hand for hand in hands)  # a gripper's parts
+                skip = skip or (not ph.self_collision_same_chain and chains[a] == chains[b])
+                skip = skip or (not ph.self_collision_fingers and (a in fingers or b in fingers))
+                skip = skip or bool(p.getClosestPoints(body, body, margin, linkIndexA=a, linkIndexB=b,
+                                                       physicsClientId=cid))
+                if skip:
                     p.setCollisionFilterPair(body, body, a, b, 0, physicsClientId=cid)
-                    self.filtered_pairs.append((names[a], names[b]))
+                    self.filtered_pairs.append(pair)
+                else:
+                    self.checked_pairs.append(pair)
 
     def _set_configuration(self, q: np.ndarray, v: np.ndarray | None = None) -> None:
         """Teleport the robot to Pinocchio configuration q (and velocity v, default 0)."""
         p, cid, body = self.p, self.client, self.body
-        self._kinematics = None
+        self._invalidate()
         q = np.asarray(q, dtype=float)
         if q.shape != (self.robot.nq,):
             raise SpecError("q", f"must have nq = {self.robot.nq} entries, got {q.shape}")
@@ -312,45 +395,63 @@ class PyBulletBackend(Backend):
                 targetVelocities=[0.0] * len(sel), forces=self.actuators.position_force_limits()[sel].tolist(),
                 positionGains=[a.position_gain] * len(sel), velocityGains=[a.velocity_gain] * len(sel),
                 physicsClientId=cid)
+        if not np.array_equal(position, self._position_mask):
+            self._torque_sel = np.flatnonzero(~position)
+            self._torque_idx = [self._act[j] for j in self._torque_sel] + self._fingers
         self._position_mask = position
-        self._torque_sel = np.flatnonzero(~position)
-        self._torque_idx = [self._act[j] for j in self._torque_sel]
-        if self._fingers:
-            goal = self.finger_open + self.finger_target * (self.finger_closed - self.finger_open)
-            n = len(self._fingers)
-            p.setJointMotorControlArray(
-                body, self._fingers, p.POSITION_CONTROL, targetPositions=goal.tolist(), targetVelocities=[0.0] * n,
-                forces=self.finger_effort.tolist(), positionGains=[self.params.actuation.finger_position_gain] * n,
-                velocityGains=[1.0] * n, physicsClientId=cid)
+        self.finger_goal = self.finger_open + self.finger_target * (self.finger_closed - self.finger_open)
 
     def _advance(self) -> None:
         p, cid, body = self.p, self.client, self.body
         ph = self.params.physics
         dt = ph.dt_s
-        n_act = len(self._act)
+        n_act, n_f = len(self._act), len(self._fingers)
         self._configure_motors()
+        actuators = self.actuators
+        torque_sel, torque_idx = self._torque_sel, self._torque_idx
+        finger_goal, finger_kp, finger_kd = self.finger_goal, self.finger_kp, self.finger_kd
+        finger_cap = self.finger_effort
+        forces = np.zeros(len(torque_idx))  # [N m] whole-body joints in torque modes, then the fingers
+        n_torque = len(torque_sel)
+        # TORQUE-only commands on powered drivers: the whole-body torques are the same for every
+        # physics step of the tick (computed once, equal to computing them each step); only the
+        # finger servo needs the joint state every step
+        constant = actuators.torques_constant(self.time)
+        read = self._fingers if constant else self._act + self._fingers
         physics = 0.0
+        perf_counter = time.perf_counter
         for k in range(ph.substeps):
-            t = self.time + k * dt
-            states = p.getJointStates(body, self._act, physicsClientId=cid)
-            q = np.fromiter((s[0] for s in states), float, n_act)
-            v = np.fromiter((s[1] for s in states), float, n_act)
-            tau, trips = self.actuators.torques(q, v, t, dt)
-            for trip in trips:
-                name = self.joint_names[trip.joint]
-                self._emit("overcurrent", f"{name}: over-current {trip.current:.1f} A > "
-                           f"{self.actuators.motor_params.current_limit[trip.joint]:.1f} A, power cut until "
-                           f"t = {trip.until:.3f} s", 2, joint=name, current_A=f"{trip.current:.2f}",
-                           until_s=f"{trip.until:.3f}")
-            if self._torque_idx:
-                p.setJointMotorControlArray(body, self._torque_idx, p.TORQUE_CONTROL,
-                                            forces=tau[self._torque_sel].tolist(), physicsClientId=cid)
+            states = p.getJointStates(body, read, physicsClientId=cid)
+            if not constant or k == 0:
+                if constant:
+                    q = np.zeros(n_act)
+                    v = q
+                else:
+                    q = np.array([st[0] for st in states[:n_act]])
+                    v = np.array([st[1] for st in states[:n_act]])
+                tau, trips = actuators.torques(q, v, self.time + k * dt, dt)
+                forces[:n_torque] = tau[torque_sel]
+                for trip in trips:
+                    name = self.joint_names[trip.joint]
+                    self._emit("overcurrent", f"{name}: over-current {trip.current:.1f} A > "
+                               f"{actuators.motor_params.current_limit[trip.joint]:.1f} A, power cut until "
+                               f"t = {trip.until:.3f} s", 2, joint=name, current_A=f"{trip.current:.2f}",
+                               until_s=f"{trip.until:.3f}")
+            if n_f:
+                finger_states = states[-n_f:]
+                qf = np.array([st[0] for st in finger_states])
+                vf = np.array([st[1] for st in finger_states])
+                tau_f = finger_kp * (finger_goal - qf) - finger_kd * vf
+                forces[n_torque:] = np.clip(tau_f, -finger_cap, finger_cap)
+            if torque_idx:
+                p.setJointMotorControlArray(body, torque_idx, p.TORQUE_CONTROL, forces=forces.tolist(),
+                                            physicsClientId=cid)
             if k == ph.substeps - 1:
-                self._imu_velocity_prev = self._base_kinematics()[2]
-            t0 = time.perf_counter()
+                self._imu_velocity_prev = self._base_origin_velocity()
+            t0 = perf_counter()
             p.stepSimulation(physicsClientId=cid)
-            physics += time.perf_counter() - t0
-            self._kinematics = None
+            physics += perf_counter() - t0
+            self._invalidate()
             if self.balls:
                 self._track_balls(dt)
         self.physics_time_s = physics
@@ -370,12 +471,35 @@ class PyBulletBackend(Backend):
         p, cid, body = self.p, self.client, self.body
         pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
         lin, ang = p.getBaseVelocity(body, physicsClientId=cid)
-        T_world_inertial = frames.pose_matrix(pos, orn)
-        T_world_base = frames.base_pose_from_inertial(T_world_inertial, self.T_link_inertial[-1])
-        com = np.asarray(pos)
-        ang = np.asarray(ang)
-        v_origin = frames.base_twist_from_com(T_world_base, com, np.asarray(lin), ang)
+        R_world_inertial = frames.quat_to_matrix(orn)
+        com = np.array(pos)
+        T_world_base = np.eye(4)  # = T_world_inertial @ T_inertial_base
+        T_world_base[:3, :3] = R_world_inertial @ self._R_inertial_base
+        T_world_base[:3, 3] = com + R_world_inertial @ self._t_inertial_base
+        ang = np.array(ang)
+        v_origin = frames.base_twist_from_com(T_world_base, com, np.array(lin), ang)
         return T_world_base, com, v_origin, ang
+
+    def _base_origin_velocity(self) -> np.ndarray:
+        """(3,) [m/s] world velocity of the root frame origin (= _base_kinematics()[2], fewer steps)."""
+        p, cid, body = self.p, self.client, self.body
+        if self._kinematics is not None:
+            return self._kinematics[2]
+        _, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
+        lin, ang = p.getBaseVelocity(body, physicsClientId=cid)
+        r = frames.quat_to_matrix(orn) @ self._t_inertial_base  # COM -> root origin, world frame
+        return np.array(lin) + frames.cross(ang, r)
+
+    def _invalidate(self) -> None:
+        """The physics state changed (a step or a teleport): drop the cached readings."""
+        self._kinematics = None
+        self._contacts = None
+
+    def _robot_contacts(self) -> tuple:
+        """getContactPoints rows with the robot as body A (last physics step), cached."""
+        if self._contacts is None:
+            self._contacts = self.p.getContactPoints(bodyA=self.body, physicsClientId=self.client)
+        return self._contacts
 
     def link_pose(self, link: int) -> np.ndarray:
         """T_world_link (URDF link frame) of a PyBullet link index (-1 = root)."""
@@ -386,37 +510,66 @@ class PyBulletBackend(Backend):
 
     def link_name(self, link: int) -> str:
         """URDF link name of a PyBullet link index (-1 = root)."""
+        names = getattr(self, "_link_names", None)
+        if names is not None and link in names:
+            return names[link]
         return next(name for name, idx in self.link_index.items() if idx == link)
 
     def surface_pose(self, limb: str) -> np.ndarray:
         """T_world_surface of a limb's contact surface (sole centre / grasp centre)."""
         return self.link_pose(self.limb_link[limb]) @ self.T_link_surface[limb]
 
+    def _prepare_sensing(self) -> None:
+        """Constant data of observe(), computed once per robot load."""
+        T_inertial_base = frames.inverse(self.T_link_inertial[-1])
+        self._R_inertial_base = T_inertial_base[:3, :3].copy()
+        self._t_inertial_base = T_inertial_base[:3, 3].copy()
+        n_act = len(self._act)
+        self._read = self._act + [self.ft_joints[s] for s in self._ft_order]  # what observe() reads
+        self._ft_rows = list(range(n_act, n_act + len(self._ft_order)))
+        T_ft = [self.T_link_inertial[self.ft_joints[s]] for s in self._ft_order]
+        self._ft_R = np.array([T[:3, :3] for T in T_ft]).reshape(-1, 3, 3)  # child inertial -> link frame
+        self._ft_t = np.array([T[:3, 3] for T in T_ft]).reshape(-1, 3)  # [m] child COM in the link frame
+        self._env_limb_links = {link: LIMBS.index(limb) for link, limb in self.link_limb.items() if limb in LIMBS}
+        self._fall_allowed = set().union(*(self.limb_links[limb] for limb in LIMBS if limb in self.limb_links))
+        self._link_names = {idx: name for name, idx in self.link_index.items()}
+        self._gravity_in_world = np.array([0.0, 0.0, -self.params.physics.gravity])
+        self._finger_positions = {hand: 0.0 for hand in self.hand_fingers}
+        self._contacts = None
+
     def observe(self) -> SimState:
         p, cid, body = self.p, self.client, self.body
         s = self.params.sensors
-        n_act, n_f = len(self._act), len(self._fingers)
+        n_act = len(self._act)
         states = p.getJointStates(body, self._read, physicsClientId=cid)
         q = np.array([st[0] for st in states[:n_act]])
         v = np.array([st[1] for st in states[:n_act]])
         T_world_base, com, v_origin, omega = self._base_kinematics()
-        q_pin = np.concatenate([T_world_base[:3, 3], frames.matrix_to_quat(T_world_base[:3, :3]), q])
-        v_pin = np.concatenate([frames.free_flyer_velocity(T_world_base, v_origin, omega), v])
-        ft = {}
-        for k, sensor in enumerate(self._ft_order):
-            reaction = np.asarray(states[n_act + n_f + k][2])
-            j = self.ft_joints[sensor]
-            force, torque = frames.wrench_child_inertial_to_link(reaction[:3], reaction[3:], self.T_link_inertial[j])
-            force, torque = -force, -torque  # parent-on-child -> distal side on the proximal side
-            if s.ft_force_noise_std:
-                force = force + self.rng.normal(0.0, s.ft_force_noise_std, 3)
-            if s.ft_torque_noise_std:
-                torque = torque + self.rng.normal(0.0, s.ft_torque_noise_std, 3)
-            ft[sensor] = Wrench(force, torque)
         R = T_world_base[:3, :3]
-        g = np.array([0.0, 0.0, -self.params.physics.gravity])
+        quaternion = frames.matrix_to_quat(R)
         gyro = R.T @ omega
-        accel = R.T @ (self._imu_acc - g)
+        q_pin = np.concatenate([T_world_base[:3, 3], quaternion, q])
+        v_pin = np.concatenate([R.T @ v_origin, gyro, v])
+        ft = {}
+        if self._ft_order:
+            # parent-on-child wrench in the child's inertial frame (torque about its COM) -> child
+            # link frame, torque about its origin; negated: the distal side on the proximal side
+            reaction = np.array([states[row][2] for row in self._ft_rows])  # (k, 6)
+            force = np.einsum("kij,kj->ki", self._ft_R, reaction[:, :3])
+            r = self._ft_t  # (k, 3) COM in the link frame: torque about the origin += r x force
+            torque = np.einsum("kij,kj->ki", self._ft_R, reaction[:, 3:])
+            torque[:, 0] += r[:, 1] * force[:, 2] - r[:, 2] * force[:, 1]
+            torque[:, 1] += r[:, 2] * force[:, 0] - r[:, 0] * force[:, 2]
+            torque[:, 2] += r[:, 0] * force[:, 1] - r[:, 1] * force[:, 0]
+            force, torque = -force, -torque
+            for k, sensor in enumerate(self._ft_order):
+                f_k, t_k = force[k], torque[k]
+                if s.ft_force_noise_std:
+                    f_k = f_k + self.rng.normal(0.0, s.ft_force_noise_std, 3)
+                if s.ft_torque_noise_std:
+                    t_k = t_k + self.rng.normal(0.0, s.ft_torque_noise_std, 3)
+                ft[sensor] = Wrench(f_k, t_k)
+        accel = R.T @ (self._imu_acc - self._gravity_in_world)
         if s.imu_gyro_noise_std:
             gyro = gyro + self.rng.normal(0.0, s.imu_gyro_noise_std, 3)
         if s.imu_accel_noise_std:
@@ -431,31 +584,35 @@ class PyBulletBackend(Backend):
             sel = np.flatnonzero(self._position_mask)
             tau[sel] = [states[j][3] for j in sel]
         tripped = self.actuators.tripped(self.time)
-        fingers = {hand: float(np.mean(self.finger_target[idx])) if idx else 0.0
-                   for hand, idx in self.hand_fingers.items()}
         return SimState(
             stamp_ns=self.stamp_ns, joint_names=self.joint_names, q=q_meas, v=v_meas,
             tau=tau, motor_current=self.actuators.motors.current.copy(),
-            tripped=tuple(nm for nm, t in zip(self.joint_names, tripped) if t), ft=ft,
-            imu=ImuReading(self.root_link, frames.matrix_to_quat(R), gyro, accel),
+            tripped=tuple(nm for nm, t in zip(self.joint_names, tripped) if t) if tripped.any() else (), ft=ft,
+            imu=ImuReading(self.root_link, quaternion, gyro, accel),
             base=BaseTruth(self.root_link, T_world_base, v_origin, omega, q_pin, v_pin),
             contact_forces=self.contact_forces(), grasps=self.grasps.latched_surfaces(),
-            finger_positions=fingers, fell=self.fell, fall_reason=self.fall_reason,
+            finger_positions=dict(self._finger_positions), fell=self.fell, fall_reason=self.fall_reason,
             balls=[self._ball_state(b) for b in self.balls])
 
     def contact_forces(self) -> dict[str, np.ndarray]:
         """limb -> (3,) [N] total force the environment (ground, ladder) applies on the limb's links,
         world frame (grasp constraint forces excluded: see grasp_forces())."""
-        out = {limb: np.zeros(3) for limb in LIMBS}
-        env = set(self.env_bodies.values())
-        for c in self.p.getContactPoints(bodyA=self.body, physicsClientId=self.client):
+        total = [[0.0, 0.0, 0.0] for _ in LIMBS]
+        env = self._env_body_set
+        limb_of = self._env_limb_links
+        for c in self._robot_contacts():
             if c[2] not in env:
                 continue
-            limb = self.link_limb.get(c[3])
-            if limb is None:
+            k = limb_of.get(c[3])
+            if k is None:
                 continue
-            out[limb] += self._contact_force_on_a(c)
-        return out
+            # force on body A: normal along contactNormalOnB (B -> A) plus the two friction directions
+            fn, n, f1, d1, f2, d2 = c[9], c[7], c[10], c[11], c[12], c[13]
+            acc = total[k]
+            acc[0] += fn * n[0] + f1 * d1[0] + f2 * d2[0]
+            acc[1] += fn * n[1] + f1 * d1[1] + f2 * d2[1]
+            acc[2] += fn * n[2] + f1 * d1[2] + f2 * d2[2]
+        return {limb: np.array(total[k]) for k, limb in enumerate(LIMBS)}
 
     @staticmethod
     def _contact_force_on_a(c: tuple) -> np.ndarray:
@@ -479,11 +636,10 @@ class PyBulletBackend(Backend):
         if T_world_base[2, 3] < threshold:
             reason = f"base height {T_world_base[2, 3]:.3f} m < {threshold:.3f} m"
         else:
-            allowed = set().union(*(self.limb_links[limb] for limb in LIMBS if limb in self.limb_links))
-            for c in self.p.getContactPoints(bodyA=self.body, bodyB=self.ground_body, physicsClientId=self.client):
-                if c[3] not in allowed and c[9] > self.params.falls.ground_contact_force:
-                    names = {idx: nm for nm, idx in self.link_index.items()}
-                    reason = f"{names[c[3]]} touches the ground ({c[9]:.0f} N)"
+            allowed, ground, limit = self._fall_allowed, self.ground_body, self.params.falls.ground_contact_force
+            for c in self._robot_contacts():
+                if c[2] == ground and c[3] not in allowed and c[9] > limit:
+                    reason = f"{self._link_names[c[3]]} touches the ground ({c[9]:.0f} N)"
                     break
         if reason:
             self.fell, self.fall_reason = True, reason
@@ -499,8 +655,11 @@ class PyBulletBackend(Backend):
             self.grasps.position(request.hand, request.position)
 
     def set_finger_target(self, hand: str, closed_fraction: float) -> None:
-        for k in self.hand_fingers.get(hand, []):
+        idx = self.hand_fingers.get(hand, [])
+        for k in idx:
             self.finger_target[k] = closed_fraction
+        if hand in self._finger_positions:
+            self._finger_positions[hand] = float(np.mean(self.finger_target[idx])) if idx else 0.0
 
     def set_grip_strength(self, newtons: float) -> None:
         """Change the grip strength of both hands [N] (applies to latched grasps at once)."""
