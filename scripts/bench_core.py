@@ -15,6 +15,10 @@ import argparse
 import json
 import pathlib
 import sys
+
+from climb_core.ros_env import apply_local_dds_env
+
+apply_local_dds_env()  # DDS stays on this machine (loopback profile, private domain)
 import time
 import xml.etree.ElementTree as ET
 

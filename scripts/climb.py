@@ -16,6 +16,10 @@ import json
 import pathlib
 import sys
 
+from climb_core.ros_env import apply_local_dds_env
+
+apply_local_dds_env()  # DDS stays on this machine (loopback profile, private domain)
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
