@@ -339,13 +339,22 @@ def build(args: argparse.Namespace) -> int:
     if args.no_write:
         print(f"designed {len(prims)} primitives (not written)")
         return 0
+    if args.reference and (mount_height is None or hands_height is None):
+        # a variant designed for part of the sequences (e.g. only the climbing cycle): the rung rules
+        # keep the main library's heights; the planner falls back to the main library's primitives
+        from planner_node.primitives import load_library as _load
+
+        main = _load(args.robot, args.strategy, nq=robot.model.nq)
+        mount_height = main.mount_height if mount_height is None else mount_height
+        hands_height = main.hands_above_feet_height if hands_height is None else hands_height
     if mount_height is None or hands_height is None:
         raise SpecError("design.sequences", "the sequences need a mount and an above_feet hand primitive")
     lib = PrimitiveLibrary(
         robot=robot.config.name, strategy=args.strategy, facing=str(design.get("facing", "forward")),
         reference_ladder=_scenario_dict(design["reference_ladder"], scenario),
         joint_names=tuple(robot.joint_names),
-        sequences={k: tuple(v) for k, v in design["sequences"].items()}, primitives=prims,
+        sequences={k: tuple(n for n in v if n in prims) for k, v in design["sequences"].items()
+                   if all(n in prims for n in v)} or {"cycle": tuple(prims)}, primitives=prims,
         holds={k: float(v) for k, v in H.items()}, mount_height=float(mount_height),
         hands_above_feet_height=float(hands_height), initial_fixture=str(design.get("initial_fixture", "standing")),
         generated_by=f"scripts/make_primitives.py --robot {args.robot} --strategy {args.strategy}")

@@ -17,6 +17,10 @@ import argparse
 import json
 import pathlib
 import sys
+
+from climb_core.ros_env import apply_local_dds_env
+
+apply_local_dds_env()  # DDS stays on this machine (loopback profile, private domain)
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]

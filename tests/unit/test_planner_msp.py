@@ -106,3 +106,18 @@ def test_progress_callback_sees_every_successful_attempt():
                       on_progress=lambda d, n, k: seen.append((d, n)))
     assert seen == [(1, 3), (2, 3), (3, 3)]
     assert np.all(np.diff([d for d, _ in seen]) == 1)
+
+
+def test_a_fatal_failure_stops_the_search_at_once():
+    calls = []
+
+    def attempt(subtask, state, j, rng):
+        calls.append((subtask, j))
+        if subtask == "grasp_tread":
+            return AttemptFailure("hold:hold.env_surface", "a grasp needs a cylinder", fatal=True)
+        return Step(state + 1, segment=subtask)
+
+    rep = multi_step_search(0, ["step", "step", "grasp_tread", "step"], attempt, m=5)
+    assert not rep.success
+    assert rep.failure_constraint == "hold:hold.env_surface"
+    assert calls == [("step", 0), ("step", 0), ("grasp_tread", 0)]  # no backtracking

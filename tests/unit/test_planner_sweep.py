@@ -18,9 +18,10 @@ from planner_node import plan_io, sweep
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 GRID = ROOT.parent / "shared" / "bench" / "ladder_grid.yaml"
-SUBSET = [(70.0, 0.20), (70.0, 0.26), (75.0, 0.25), (72.0, 0.22), (80.0, 0.25), (90.0, 0.35)]
-EXPECTED_SOLVED = {(70.0, 0.20), (70.0, 0.26), (75.0, 0.25)}
-TIMEOUT_S = 20.0
+SUBSET = [(75.0, 0.25), (70.0, 0.29), (72.0, 0.23), (70.0, 0.26), (70.0, 0.32), (90.0, 0.35)]
+# planned in the recorded sweeps (docs/planner.md); 90 deg / 35 cm is beyond the library (knees on the rungs)
+EXPECTED_SOLVED = {(75.0, 0.25), (70.0, 0.29), (72.0, 0.23), (70.0, 0.26)}
+TIMEOUT_S = 60.0
 
 
 def grid_doc() -> dict:

@@ -39,6 +39,7 @@ from climb_core import feasibility
 from climb_core import holds as holds_mod
 from climb_core import ik as core_ik
 from climb_core.contact import FEET, HANDS, Hold, Stance, Transition
+from climb_core.errors import SpecError
 
 from . import interpolation as interp
 from . import pcik
@@ -117,7 +118,7 @@ class AdaptContext:
         base_ik = core_ik.load_ik_params()
         self.ik_params = dataclasses.replace(base_ik, restarts=0)
         self.stats = AdaptStats()
-        self._targets: dict[int, np.ndarray] = {}
+        self._targets: dict[int, tuple[Hold, np.ndarray]] = {}
 
     # ---------------------------------------------------------------- checks
     def check(self, q: np.ndarray, stance: Stance, exclusions: Sequence[tuple[str, str]] = ()
@@ -133,11 +134,12 @@ class AdaptContext:
         """[m] world position of the robot surface frame when ``hold`` is made (cached per hold)."""
         key = id(hold)
         hit = self._targets.get(key)
-        if hit is None:
-            hit = np.asarray(holds_mod.hold_target(self.robot, self.env, hold, params=self.hold_params)
-                             .T_world_surface)[:3, 3].copy()
+        if hit is None or hit[0] is not hold:  # the hold is kept in the entry: its id cannot be reused
+            origin = np.asarray(holds_mod.hold_target(self.robot, self.env, hold, params=self.hold_params)
+                                .T_world_surface)[:3, 3].copy()
+            hit = (hold, origin)
             self._targets[key] = hit
-        return hit
+        return hit[1]
 
 
 def failure_name(res: feasibility.FeasibilityResult) -> str:
@@ -529,9 +531,12 @@ class Segment:
 def adapt_primitive(ctx: AdaptContext, prim: Primitive, state: ClimbState, attempt: int,
                     rng: np.random.Generator) -> Step | AttemptFailure:
     """Adapt-Primitive(Q̄, q_s, σ_s) for one attempt (see the module docstring)."""
-    if prim.is_limb:
-        return _adapt_limb(ctx, prim, state, attempt, rng)
-    return _adapt_com(ctx, prim, state, attempt, rng)
+    try:
+        if prim.is_limb:
+            return _adapt_limb(ctx, prim, state, attempt, rng)
+        return _adapt_com(ctx, prim, state, attempt, rng)
+    except SpecError as exc:  # e.g. a grasp asked on a tread: this library cannot hold that surface
+        return AttemptFailure(f"hold:{exc.field}", f"{prim.name}: {exc}", fatal=True)
 
 
 def _world_waypoints(ctx: AdaptContext, prim: Primitive) -> list[np.ndarray]:
@@ -549,7 +554,8 @@ def _adapt_limb(ctx: AdaptContext, prim: Primitive, state: ClimbState, attempt: 
     if hold is None:
         hold = sample_target_hold(ctx, prim, state, attempt, rng)
     if hold is None:
-        return AttemptFailure("no_target", f"{prim.name}: no rung for the seed hold")
+        return AttemptFailure("no_target", f"{prim.name}: no rung for the seed hold (the ladder is too short)",
+                              fatal=attempt == 0)
     if isinstance(hold, str) and hold == SKIP:
         return Step(state, Segment(prim.name, None, old, attempt))
     sigma_e = state.stance.with_hold(hold)

@@ -46,6 +46,9 @@ class AttemptFailure:
 
     constraint: str
     detail: str = ""
+    #: no other choice upstream can fix it (e.g. the ladder has no surface this primitive can
+    #: hold): the whole search stops instead of backtracking
+    fatal: bool = False
 
 
 @dataclass
@@ -68,6 +71,10 @@ class SearchReport(Generic[S]):
 
 
 class _Timeout(Exception):
+    pass
+
+
+class _Fatal(Exception):
     pass
 
 
@@ -116,6 +123,9 @@ def multi_step_search(
                 failure = outcome if isinstance(outcome, AttemptFailure) else AttemptFailure("unknown", repr(outcome))
                 report.failures.setdefault(i, collections.Counter())[failure.constraint] += 1
                 report.failure_log.append((i, j, failure))
+                if failure.fatal:
+                    report.failure_constraint, report.failure_detail = failure.constraint, failure.detail
+                    raise _Fatal()
                 continue
             new_segments = segments + [(outcome.segment, outcome.state)]
             if i + 1 > report.deepest:
@@ -131,6 +141,8 @@ def multi_step_search(
 
     try:
         found = recurse(0, initial_state, [], [])
+    except _Fatal:
+        found = None
     except _Timeout:
         found = None
         report.failure_constraint = TIME_LIMIT

@@ -23,9 +23,9 @@ import yaml
 
 from climb_core.errors import SpecError
 
-CSV_FIELDS = ("inclination_deg", "rung_spacing", "success", "plan_time_s", "failure_category", "failure_constraint",
-              "failure_detail", "rungs_reached", "n_stances", "attempts", "backtracks", "robot", "strategy", "steps",
-              "timeout_s", "seed")
+CSV_FIELDS = ("inclination_deg", "rung_spacing", "success", "plan_time_s", "plan_cpu_s", "failure_category",
+              "failure_constraint", "frontier_constraint", "failure_detail", "rungs_reached", "n_stances", "attempts",
+              "backtracks", "robot", "strategy", "steps", "timeout_s", "seed")
 
 
 @dataclass(frozen=True)
@@ -97,6 +97,16 @@ def failure_category(constraint: str) -> str:
     return constraint.split(":", 1)[0] if constraint else ""
 
 
+def frontier(res) -> str:
+    """The constraint that failed most at the deepest sub-task reached (also for a time-limited
+    search: what the robot was stuck on when the clock ran out)."""
+    from .msp import frontier_failure
+
+    if res.report is None:
+        return res.failure_constraint
+    return frontier_failure(res.report.failures, res.report.deepest)[0]
+
+
 def run_task(task: SweepTask) -> dict:
     """Plan one grid ladder; never raises (errors become a failed row)."""
     import dataclasses
@@ -121,12 +131,15 @@ def run_task(task: SweepTask) -> dict:
         res = plan_climb(robot, env, task.steps, settings=settings, seed=task.seed, timeout_s=task.timeout_s)
         s = res.summary()
         row.update(success=bool(res.success), plan_time_s=round(res.plan_time_s, 3),
+                   plan_cpu_s=round(res.plan_cpu_s, 3),
                    failure_constraint=res.failure_constraint if not res.success else "",
+                   frontier_constraint="" if res.success else frontier(res),
                    failure_detail="" if res.success else res.failure_detail[:300],
                    rungs_reached=s["rungs_reached"], n_stances=s["n_stances"], attempts=s["attempts"],
                    backtracks=s["backtracks"], strategy=settings.planning.strategy)
     except SpecError as exc:
-        row.update(success=False, plan_time_s=round(time.perf_counter() - t0, 3), failure_constraint="spec",
+        row.update(success=False, plan_time_s=round(time.perf_counter() - t0, 3), plan_cpu_s=0.0,
+                   failure_constraint="spec", frontier_constraint="spec",
                    failure_detail=str(exc), rungs_reached=0, n_stances=0, attempts=0, backtracks=0,
                    strategy=task.strategy)
     row["failure_category"] = failure_category(row.get("failure_constraint", ""))
@@ -165,6 +178,8 @@ def statistics(rows: list[dict]) -> dict:
             cats[r["failure_category"] or "unknown"] = cats.get(r["failure_category"] or "unknown", 0) + 1
     return {"n": n, "n_success": len(ok), "success_rate": (len(ok) / n) if n else 0.0,
             "median_plan_time_s": float(np.median(times)) if times else float("nan"),
+            "median_plan_cpu_s": float(np.median([float(r.get("plan_cpu_s") or 0.0) for r in ok])) if ok
+            else float("nan"),
             "p90_plan_time_s": float(np.percentile(times, 90)) if times else float("nan"),
             "failures_by_category": dict(sorted(cats.items(), key=lambda kv: -kv[1]))}
 
@@ -180,13 +195,16 @@ def heat_maps(rows: list[dict], path: str | pathlib.Path, title: str = "") -> pa
 
     incls = sorted({r["inclination_deg"] for r in rows})
     sps = sorted({r["rung_spacing"] for r in rows})
-    cats = sorted({r["failure_category"] or "unknown" for r in rows if not r["success"]})
+    def cat(r):  # what stopped it: the frontier constraint's category (time limits included)
+        return failure_category(r.get("frontier_constraint") or r.get("failure_constraint") or "") or "unknown"
+
+    cats = sorted({cat(r) for r in rows if not r["success"]})
     codes = {c: i + 1 for i, c in enumerate(cats)}
     S = np.full((len(sps), len(incls)), np.nan)
     T = np.full((len(sps), len(incls)), np.nan)
     for r in rows:
         i, j = sps.index(r["rung_spacing"]), incls.index(r["inclination_deg"])
-        S[i, j] = 0 if r["success"] else codes[r["failure_category"] or "unknown"]
+        S[i, j] = 0 if r["success"] else codes[cat(r)]
         T[i, j] = float(r["plan_time_s"])
     palette = ["black", "tab:red", "tab:orange", "tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:pink",
                "tab:gray", "tab:olive", "tab:cyan"]
@@ -202,7 +220,7 @@ def heat_maps(rows: list[dict], path: str | pathlib.Path, title: str = "") -> pa
     ax.set_ylabel("rung spacing [cm]")
     handles = [plt.Rectangle((0, 0), 1, 1, color=palette[0])] + \
               [plt.Rectangle((0, 0), 1, 1, color=palette[codes[c]]) for c in cats]
-    ax.legend(handles, ["planned"] + [f"failed: {c}" for c in cats], loc="upper left", fontsize=7,
+    ax.legend(handles, ["planned"] + [f"stopped by: {c}" for c in cats], loc="upper left", fontsize=7,
               bbox_to_anchor=(1.0, 1.0))
     ax = axes[1]
     im = ax.imshow(T, origin="lower", aspect="auto", cmap="viridis", extent=extent, interpolation="nearest")
