@@ -17,3 +17,24 @@ os.environ.setdefault("CLIMB_ROOT", str(ROOT))
 
 if str(ROOT / "tests") not in sys.path:
     sys.path.insert(0, str(ROOT / "tests"))
+
+
+# -- shared canonical scenario objects (cached models: load once per session) -------------------
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def g1():
+    """The default robot (Unitree G1 + Dex3 hands), loaded once."""
+    from climb_core.robot import load_robot
+
+    return load_robot("g1")
+
+
+@pytest.fixture(scope="session")
+def env():
+    """The default ladder's environment (config/ladders/default.yaml)."""
+    from climb_core.environment import build_environment
+    from climb_core.ladder import load_scenario
+
+    return build_environment(load_scenario("default"))

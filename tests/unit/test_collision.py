@@ -11,19 +11,6 @@ import pytest
 
 from climb_core import collision, fixtures
 from climb_core.contact import FEET
-from climb_core.environment import build_environment
-from climb_core.ladder import load_scenario
-from climb_core.robot import load_robot
-
-
-@pytest.fixture(scope="module")
-def g1():
-    return load_robot("g1")
-
-
-@pytest.fixture(scope="module")
-def env():
-    return build_environment(load_scenario("default"))
 
 
 @pytest.fixture(scope="module")

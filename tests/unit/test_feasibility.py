@@ -11,22 +11,9 @@ import pytest
 from climb_core import feasibility as fz
 from climb_core import fixtures, holds, ik
 from climb_core.contact import FEET, HANDS, Stance
-from climb_core.environment import build_environment
 from climb_core.errors import SpecError
-from climb_core.ladder import load_scenario
-from climb_core.robot import load_robot
 
 GRAVITY = 9.81  # [m/s^2] Pinocchio's default gravity magnitude
-
-
-@pytest.fixture(scope="module")
-def g1():
-    return load_robot("g1")
-
-
-@pytest.fixture(scope="module")
-def env():
-    return build_environment(load_scenario("default"))
 
 
 @pytest.fixture(scope="module")

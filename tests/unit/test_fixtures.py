@@ -13,16 +13,6 @@ from climb_core.ladder import load_scenario
 from climb_core.robot import load_robot
 
 
-@pytest.fixture(scope="module")
-def g1():
-    return load_robot("g1")
-
-
-@pytest.fixture(scope="module")
-def env():
-    return build_environment(load_scenario("default"))
-
-
 @pytest.mark.parametrize("name", fixtures.NAMES)
 def test_every_fixture_is_feasible(g1, env, name):
     cfg = fz.load_config()

@@ -12,12 +12,6 @@ from climb_core.contact import FEET, HANDS
 from climb_core.environment import build_environment
 from climb_core.errors import SpecError
 from climb_core.ladder import load_scenario
-from climb_core.robot import load_robot
-
-
-@pytest.fixture(scope="module")
-def g1():
-    return load_robot("g1")
 
 
 @pytest.fixture(scope="module")

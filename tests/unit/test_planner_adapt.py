@@ -6,24 +6,11 @@ import pinocchio as pin
 import pytest
 
 from climb_core import feasibility, fixtures, holds
-from climb_core.environment import build_environment
 from climb_core.errors import SpecError
-from climb_core.ladder import load_scenario
-from climb_core.robot import load_robot
 from planner_node import adapt as A
 from planner_node import interpolation as interp
 from planner_node.primitives import load_library, parse_primitive, to_ladder, to_world
 from planner_node.settings import load_settings
-
-
-@pytest.fixture(scope="module")
-def g1():
-    return load_robot("g1")
-
-
-@pytest.fixture(scope="module")
-def env():
-    return build_environment(load_scenario("default"))
 
 
 @pytest.fixture(scope="module")

@@ -12,9 +12,6 @@ import pytest
 
 from climb_core import fixtures
 from climb_core.contact import FEET, HANDS
-from climb_core.environment import build_environment
-from climb_core.ladder import load_scenario
-from climb_core.robot import load_robot
 from planner_node import plan_io
 from planner_node.adapt import limb_rung
 from planner_node.climb_planner import plan_climb
@@ -22,16 +19,6 @@ from planner_node.settings import load_settings
 from planner_node.verify import verify_plan
 
 STEPS = 2
-
-
-@pytest.fixture(scope="module")
-def g1():
-    return load_robot("g1")
-
-
-@pytest.fixture(scope="module")
-def env():
-    return build_environment(load_scenario("default"))
 
 
 @pytest.fixture(scope="module")

@@ -7,21 +7,8 @@ import pytest
 
 from climb_core import feasibility, fixtures, holds
 from climb_core.contact import Stance
-from climb_core.environment import build_environment
-from climb_core.ladder import load_scenario
-from climb_core.robot import load_robot
 from planner_node import pcik
 from planner_node.settings import load_settings
-
-
-@pytest.fixture(scope="module")
-def g1():
-    return load_robot("g1")
-
-
-@pytest.fixture(scope="module")
-def env():
-    return build_environment(load_scenario("default"))
 
 
 @pytest.fixture(scope="module")

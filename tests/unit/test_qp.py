@@ -6,9 +6,7 @@ import pinocchio as pin
 import pytest
 
 from climb_core.contact import Stance
-from climb_core.environment import build_environment
 from climb_core.holds import hold_from_configuration
-from climb_core.ladder import load_scenario
 from climb_core.robot import load_robot
 from controller_node.constraints import (CollisionAvoidance, contact_from_hold, friction_generators,
                                          joint_acceleration_bounds)
@@ -24,11 +22,6 @@ G = 9.81  # [m/s^2]
 @pytest.fixture(scope="module")
 def robot():
     return load_robot("g1")
-
-
-@pytest.fixture(scope="module")
-def env():
-    return build_environment(load_scenario("default"))
 
 
 @pytest.fixture(scope="module")
