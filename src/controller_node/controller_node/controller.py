@@ -328,7 +328,9 @@ class Controller:
             path = folder / f"qp_failure_{int(time.time() * 1e3)}_{self.qp_failures:04d}.npz"
             failure.saved_path = save_problem(
                 failure.problem, path, solver=failure.solver, status=failure.status, time=self.time,
-                fsm_state=self.fsm.state, contacts=",".join(self.contacts))
+                fsm_state=self.fsm.state, contacts=",".join(self.contacts),
+                dampers=";".join(f"{d.name}:d={d.distance:.4f}:rate={d.distance_rate:.3f}:lower={d.lower:.2f}"
+                                 for d in self.wb.last_dampers()))
             self.saved_failures.append(path)
         self.emit("qp_failure", status=failure.status, solver=failure.solver,
                   saved=str(failure.saved_path or ""))

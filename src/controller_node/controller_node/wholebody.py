@@ -481,6 +481,10 @@ class WholeBodyQP:
         self._dampers = self._batch.as_rows()
         return ws.snapshot()
 
+    def last_dampers(self) -> list[DamperRow]:
+        """The damper rows of the last problem built (diagnostics: a failing QP's active pairs)."""
+        return self._batch.as_rows() if len(self._batch) else list(self._dampers)
+
     def solve(self, contacts: list[ActiveContact], tasks: list[Task],
               disabled_pairs: set[tuple[str, str]] | frozenset = frozenset()) -> WholeBodyResult:
         ws = self._fill(contacts, tasks, disabled_pairs)
