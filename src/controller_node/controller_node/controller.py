@@ -706,6 +706,15 @@ class Controller:
         self.posture_task.set_target(q_post)
 
     def _approach_direction(self, limb: str) -> np.ndarray:
+        """Unit direction [world] of the guarded search past the planned end pose: into the target
+        surface (minus its mean normal) for a unilateral hold (a foot pushes down onto a rung even
+        when the plan's last way-points slide sideways onto it); the direction of the path's last
+        20 % for a grasp (the palm closes in on the rung along the planned approach)."""
+        hold = self.transition.target_stance.hold(limb) if self.transition is not None else None
+        if hold is not None and not hold.bilateral and len(hold.points):
+            n = np.asarray(hold.normals, float).mean(axis=0)
+            if np.linalg.norm(n) > 1e-6:
+                return -n / np.linalg.norm(n)
         ref = self.reference
         end_com, T_end = self._reference_quantities(ref.end, limb)
         q_before, _ = ref.sample(0.8 * ref.duration)
