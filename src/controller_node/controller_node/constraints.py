@@ -59,11 +59,14 @@ def tangent_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def friction_generators(normal: np.ndarray, mu: float, count: int = 4) -> np.ndarray:
     """(3, count) unit edges of the pyramid inscribed in the cone |f_t| <= mu f_n around ``normal``.
 
-    Every non-negative combination satisfies the Coulomb law (inner approximation).
+    Every non-negative combination satisfies the Coulomb law (inner approximation). The edges sit
+    half a sector off the tangents, so the faces are normal to ``t1``, ``t2`` (for 4 edges:
+    |f.t1|, |f.t2| <= mu cos(pi/4) f_n): the same pyramid as the planner's feasibility check
+    (climb_core.feasibility), so a planned stance is inside the controller's cones too.
     """
     n = normal / np.linalg.norm(normal)
     t1, t2 = tangent_basis(n)
-    angles = 2.0 * np.pi * np.arange(count) / count
+    angles = 2.0 * np.pi * (np.arange(count) + 0.5) / count
     edges = n[:, None] + mu * (np.cos(angles)[None, :] * t1[:, None] + np.sin(angles)[None, :] * t2[:, None])
     return edges / np.linalg.norm(edges, axis=0)
 

@@ -178,6 +178,8 @@ class Controller:
         self.events: list[ControllerEvent] = []
         self.qp_failures = 0
         self.saved_failures: list[pathlib.Path] = []
+        self.dampers_released = 0  # ticks solved only after releasing dampers within the security distance
+        self._released_pairs: list[tuple[str, str]] = []
         self.fallback_active = False
         self._q_fallback: np.ndarray | None = None
         self._tau_ff = np.zeros(self.na)
@@ -263,7 +265,12 @@ class Controller:
         qp_status, solve_ms = QP_NOT_RUN, 0.0
         result = None
         try:
-            result = self.wb.solve(contacts, self.active_tasks, disabled)
+            try:
+                result = self.wb.solve(contacts, self.active_tasks, disabled)
+            except QpFailure:
+                result = self._solve_without_blocked_dampers(contacts, disabled)
+                if result is None:
+                    raise
             qp_status, solve_ms = QP_OK, result.solution.solve_time * 1e3
         except QpFailure as failure:
             qp_status = QP_FAILED
@@ -316,6 +323,29 @@ class Controller:
         wrenches = {limb: c.wrench_in_world for limb, c in result.contacts.items()} if result is not None else {}
         return ControlOutput(state.time, state.stamp_ns, self.joint_names, mode, values, tau,
                              list(self.grippers_out), status, wrenches)
+
+    def _solve_without_blocked_dampers(self, contacts: list[ActiveContact], disabled: frozenset):
+        """One retry after an infeasible QP: the dampers of pairs already within the security
+        distance (a knee resting against a rung while both feet hold) can demand a separating
+        acceleration the held contacts forbid. Those pairs are released for this tick (event
+        ``dampers_released``); every other constraint stays. None if that does not help."""
+        ds = self.params.collision.security_distance
+        blocked = []
+        for row in self.wb.last_dampers():
+            if row.distance <= ds + 1e-9 and "|" in row.name:
+                a, b = row.name.split("|", 1)
+                blocked.append((a, b))
+        if not blocked:
+            return None
+        try:
+            result = self.wb.solve(contacts, self.active_tasks, frozenset(disabled) | frozenset(blocked))
+        except QpFailure:
+            return None
+        self.dampers_released += 1
+        if self._released_pairs != blocked:
+            self._released_pairs = blocked
+            self.emit("dampers_released", pairs=[f"{a}|{b}" for a, b in blocked])
+        return result
 
     # ------------------------------------------------------------------ failure handling
     def _on_failure(self, failure: QpFailure) -> None:
