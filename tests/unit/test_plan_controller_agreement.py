@@ -1,0 +1,69 @@
+"""The controller can hold, at rest, every stance the planner planned (no simulator).
+
+The planner certifies its configurations with climb_core.feasibility (friction pyramids, grip
+polytopes, torque limits); the controller holds them with its QP's contact model. For every
+transition of the default 2-step climb (planned with the climb's settings, config/climb.yaml), at
+the path's first and last configuration, the least static max |tau| / effort the QP's contact rows
+allow must be within the QP's torque limit fraction. (A friction pyramid rotated by 45 deg against
+the planner's once made the single-foot stances impossible to hold at rest: ratio 1.34.)
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from climb_coordinator.settings import apply_planner_overrides, load_climb_settings
+from controller_node.agreement import controller_static_ratio
+from controller_node.controller import Controller
+from controller_node.estimator import RobotState
+from controller_node.params import load_controller_params
+from planner_node import plan_io
+from planner_node.climb_planner import plan_climb
+from planner_node.settings import load_settings
+
+
+@pytest.fixture(scope="module")
+def climb_plan(g1, env):
+    cs = load_climb_settings()
+    settings = apply_planner_overrides(load_settings(), cs.planner_overrides)
+
+    def compute():
+        res = plan_climb(g1, env, 2, settings=settings, seed=0)
+        return (res.plan if res.success else None), res.summary()
+
+    key = plan_io.source_fingerprint("test_plan_controller_agreement", env.scenario, 2, 0,
+                                     sorted(cs.planner_overrides.items()))
+    plan, meta = plan_io.cached_plan(key, compute)
+    assert plan is not None, meta.get("failure_reason")
+    return plan, cs
+
+
+def _ratio(g1, env, params, q, stance) -> float:
+    controller = Controller(g1, params, env)
+    zero = np.zeros(g1.model.nv)
+    controller.reset(RobotState(0.0, np.array(q, float), zero), stance)
+    return controller_static_ratio(controller)
+
+
+def test_every_planned_stance_is_holdable_under_the_qp_contact_model(g1, env, climb_plan):
+    plan, cs = climb_plan
+    params = load_controller_params(**cs.controller_overrides)
+    limit = params.qp.torque_limit_fraction
+    worst = (0.0, "")
+    for i, t in enumerate(plan.transitions):
+        for where, q in (("start", t.path[0]), ("end", t.path[-1])):
+            r = _ratio(g1, env, params, q, t.stance)
+            assert r <= limit, (i + 1, t.primitive, t.moving_limb, where, r)
+            worst = max(worst, (r, f"{i + 1}:{t.primitive}:{where}"))
+    # the single-foot ladder stances are the hard ones; they load some joint to a real share
+    assert worst[0] > 0.3, worst
+
+
+def test_a_crippled_contact_model_is_caught(g1, env, climb_plan):
+    """Control: with cones 20x narrower than the ladder's friction the same check fails on the
+    one-foot-on-a-rung stance (the check can fail)."""
+    plan, cs = climb_plan
+    params = load_controller_params(**{**cs.controller_overrides, "contacts.friction_margin": 0.05})
+    t = next(t for t in plan.transitions if t.primitive == "place_foot" and t.moving_limb == "right_foot"
+             and any(h.env_surface.startswith("rung") for h in t.stance.holds if h.limb == "left_foot"))
+    assert _ratio(g1, env, params, t.path[0], t.stance) > params.qp.torque_limit_fraction
