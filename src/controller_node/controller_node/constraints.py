@@ -59,14 +59,16 @@ def tangent_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def friction_generators(normal: np.ndarray, mu: float, count: int = 4) -> np.ndarray:
     """(3, count) unit edges of the pyramid inscribed in the cone |f_t| <= mu f_n around ``normal``.
 
-    Every non-negative combination satisfies the Coulomb law (inner approximation). The edges sit
-    half a sector off the tangents, so the faces are normal to ``t1``, ``t2`` (for 4 edges:
-    |f.t1|, |f.t2| <= mu cos(pi/4) f_n): the same pyramid as the planner's feasibility check
-    (climb_core.feasibility), so a planned stance is inside the controller's cones too.
+    Every non-negative combination satisfies the Coulomb law (inner approximation). The edges
+    start 45 deg off ``t1`` and repeat every 360/count deg. With 4 edges the faces are normal to
+    ``t1``, ``t2`` (|f.t1|, |f.t2| <= mu cos 45 deg f_n): the planner's pyramid
+    (climb_core.feasibility), so a planned stance is inside the controller's cones. With a
+    multiple of 4 (8: the default) the edges include those and the ones on the tangents: the cone
+    contains the planner's pyramid and forces along a single tangent up to mu f_n.
     """
     n = normal / np.linalg.norm(normal)
     t1, t2 = tangent_basis(n)
-    angles = 2.0 * np.pi * (np.arange(count) + 0.5) / count
+    angles = 0.25 * np.pi + 2.0 * np.pi * np.arange(count) / count
     edges = n[:, None] + mu * (np.cos(angles)[None, :] * t1[:, None] + np.sin(angles)[None, :] * t2[:, None])
     return edges / np.linalg.norm(edges, axis=0)
 
@@ -116,9 +118,15 @@ class ActiveContact:
         k, _, g = self.generators.shape
         self._offsets_in_frame = self.points_in_frame - self.reference_in_frame
         self._force_block = self.generators.transpose(1, 0, 2).reshape(3, k * g)
+        # the moment rows of Phi are linear in the (world) offsets: flat (3 k g,) = map @ offsets.ravel()
+        basis = np.eye(3 * k).reshape(3 * k, k, 3)
+        self._moment_map = np.einsum("ijk,bpj,pkg->ipgb", _LEVI_CIVITA, basis, self.generators).reshape(3 * k * g, 3 * k)
+        self._phi = np.empty((6, k * g))
+        self._phi[:3] = self._force_block
         self._normal_rows = np.zeros((k, k * g))
         for i in range(k):
             self._normal_rows[i, i * g:(i + 1) * g] = self.normals_in_world[i] @ self.generators[i]
+        self._total_normal_row = self._normal_rows.sum(axis=0)
 
     @property
     def n_variables(self) -> int:
@@ -130,17 +138,19 @@ class ActiveContact:
         """Phi (6, n_var): wrench [N, N m] at the reference point, world axes, from the variables."""
         if self.bilateral:
             return _EYE6
-        k, _, g = self.generators.shape
         offsets = self._offsets_in_frame @ R_world_frame.T  # (k, 3) world
-        phi = np.empty((6, k * g))
-        phi[:3] = self._force_block
         # moments offset_i x G_i[:, j], laid out like the force block (point-major columns)
-        phi[3:] = np.einsum("ijk,pj,pkg->ipg", _LEVI_CIVITA, offsets, self.generators).reshape(3, k * g)
+        phi = self._phi.copy()
+        np.matmul(self._moment_map, offsets.reshape(-1), out=phi[3:].reshape(-1))
         return phi
 
     def normal_rows(self) -> np.ndarray:
         """(k, n_var): normal force of each point from the generator variables [N]."""
         return self._normal_rows
+
+    def total_normal_row(self) -> np.ndarray:
+        """(n_var,): total normal force over the points from the generator variables [N]."""
+        return self._total_normal_row
 
     def grip_limits(self) -> tuple[float, float]:
         """(force [N], moment [N m]) limits of a grasp now (scale and release ramp applied)."""
@@ -237,6 +247,41 @@ def joint_acceleration_bounds(q_joints: np.ndarray, v_joints: np.ndarray, lower:
     lo = np.minimum(lo, a_stop)
     hi = np.maximum(hi, a_stop)
     return lo, hi
+
+
+class JointAccelerationBounds:
+    """:func:`joint_acceleration_bounds` with its constants folded once and the bounds written in
+    place (the per-tick path of the whole-body QP); same arithmetic up to rounding."""
+
+    def __init__(self, lower: np.ndarray, upper: np.ndarray, velocity_limit: np.ndarray, horizon: float,
+                 accel_bound: float, margin: float = 0.0):
+        T = float(horizon)
+        self.T = T
+        self.scale = 2.0 / T ** 2  # [1/s^2]
+        self.lo_q = np.asarray(lower, float) + margin  # [rad]
+        self.hi_q = np.asarray(upper, float) - margin
+        self.lo_v = -np.asarray(velocity_limit, float) / T  # [rad/s^2]
+        self.hi_v = np.asarray(velocity_limit, float) / T
+        self.accel = float(accel_bound)
+        self._reach = np.empty_like(self.lo_q)
+        self._tmp = np.empty_like(self.lo_q)
+
+    def fill(self, q_joints: np.ndarray, v_joints: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
+        T, reach, tmp = self.T, self._reach, self._tmp
+        np.multiply(v_joints, T, out=reach)
+        reach += q_joints  # q + v T
+        np.subtract(self.lo_q, reach, out=lo)
+        lo *= self.scale
+        np.subtract(self.hi_q, reach, out=hi)
+        hi *= self.scale
+        np.divide(v_joints, -T, out=tmp)  # -v / T: the stopping acceleration
+        np.maximum(lo, np.add(self.lo_v, tmp, out=reach), out=lo)
+        np.minimum(hi, np.add(self.hi_v, tmp, out=reach), out=hi)
+        np.maximum(lo, -self.accel, out=lo)
+        np.minimum(hi, self.accel, out=hi)
+        np.clip(tmp, -self.accel, self.accel, out=tmp)
+        np.minimum(lo, tmp, out=lo)
+        np.maximum(hi, tmp, out=hi)
 
 
 # --------------------------------------------------------------------------------------------
@@ -338,6 +383,7 @@ class CollisionAvoidance:
         self._request = coal.DistanceRequest()
         self._request.enable_signed_distance = True
         self._result = coal.DistanceResult()
+        self._tf1 = coal.Transform3s()
         self._setup_batched(env_links, robot_geometries)
 
     # -- geometry helpers ---------------------------------------------------------------
@@ -586,7 +632,10 @@ class CollisionAvoidance:
             functor = self._functors[functor_key] = self._coal.ComputeDistance(g1, g2)
         result = self._result
         result.clear()
-        d = functor(self._coal.Transform3s(R1, t1), tf2, self._request, result)
+        tf1 = self._tf1  # one reused coal transform (constructing one costs ~3 us)
+        tf1.setRotation(R1)
+        tf1.setTranslation(t1)
+        d = functor(tf1, tf2, self._request, result)
         p1 = result.getNearestPoint1().tolist()
         p2 = result.getNearestPoint2().tolist()
         dx, dy, dz = p1[0] - p2[0], p1[1] - p2[1], p1[2] - p2[2]
@@ -602,7 +651,9 @@ class CollisionAvoidance:
         """Damper rows for every pair closer than the influence distance, batched.
 
         ``disabled``: (link, surface) pairs switched off (limb making or holding contact with
-        that surface). Needs pin data with joint Jacobians and forwardKinematics(q, v, 0).
+        that surface). Needs pin data with the joint Jacobians and their time variation
+        (``computeJointJacobiansTimeVariation(q, v)``: ``data.J``, ``data.dJ``) and the joint
+        placements of that configuration (:meth:`WholeBodyQP.update` computes them).
         Every step below only skips pairs proven to be at least the influence distance apart,
         so the rows are those of checking every pair exactly (:meth:`rows_reference`):
 
@@ -626,7 +677,8 @@ class CollisionAvoidance:
         slot = self._item_slot
         R_items = H[slot, :3, :3]  # (I, 3, 3)
         t_items = H[slot, :3, 3]
-        centres = np.einsum("ijk,ik->ij", R_items, self._centre_in_joint) + t_items
+        centres = np.matmul(R_items, self._centre_in_joint[:, :, None])[:, :, 0]
+        centres += t_items
         if self._prev_centres is not None:  # spend the coherence budgets
             dc = centres - self._prev_centres
             dR = (R_items - self._prev_R).reshape(-1, 9)
@@ -645,53 +697,61 @@ class CollisionAvoidance:
         todo = cand[~((self._budget[cand] >= 0.0) | self._pair_disabled[cand])]
         names: list[str] = []
         distances: list[float] = []
-        normals: list[np.ndarray] = []
+        normals: list[list[float]] = []
         term_row: list[int] = []
         term_item: list[int] = []
-        term_point: list[np.ndarray] = []
+        term_point: list[list[float]] = []
         term_sign: list[float] = []
         if len(todo):
             n_env_pairs = self._n_env_pairs
             it = self._pair_a[todo]
-            R_geom = np.matmul(R_items[it], self._placement_R[it])
-            t_geom = np.einsum("ijk,ik->ij", R_items[it], self._placement_t[it]) + t_items[it]
+            R_it = R_items[it]
+            R_geom = np.matmul(R_it, self._placement_R[it])
+            t_geom = np.matmul(R_it, self._placement_t[it][:, :, None])[:, :, 0]
+            t_geom += t_items[it]
             measured = np.empty(len(todo))
+            items, env, pair_names, di = self._items, self._env, self._pair_names, self.di
             for n_i, (pid, item) in enumerate(zip(todo.tolist(), it.tolist())):
                 if pid < n_env_pairs:
-                    _, env_geom, env_tf = self._env[pid % self._n_env]
-                    d, p_body, _p_obstacle, n = self._exact(self._items[item][1], R_geom[n_i], t_geom[n_i],
+                    _, env_geom, env_tf = env[pid % self._n_env]
+                    d, p_body, _p_obstacle, n = self._exact(items[item][1], R_geom[n_i], t_geom[n_i],
                                                             env_geom, env_tf, pid)
                     measured[n_i] = d
-                    if d < self.di:
+                    if d < di:
                         term_row.append(len(names))
                         term_item.append(item)
                         term_point.append(p_body)
                         term_sign.append(1.0)
-                        names.append(self._pair_names[pid])
+                        names.append(pair_names[pid])
                         distances.append(d)
                         normals.append(n)
                 else:
                     ib = int(self._pair_b[pid])
-                    _, gb, jb, pb, _, _ = self._items[ib]
+                    _, gb, jb, pb, _, _ = items[ib]
                     Mb = oMi[jb] * pb
-                    d, p_a, p_b, n = self._distance(self._items[item][1],
+                    d, p_a, p_b, n = self._distance(items[item][1],
                                                     self._coal.Transform3s(R_geom[n_i], t_geom[n_i]),
                                                     gb, self._coal.Transform3s(Mb.rotation, Mb.translation))
                     measured[n_i] = d
-                    if d < self.di:
+                    if d < di:
                         row = len(names)
                         term_row += [row, row]
                         term_item += [item, ib]
-                        term_point += [p_a, p_b]
+                        term_point += [p_a.tolist(), p_b.tolist()]
                         term_sign += [1.0, -1.0]
-                        names.append(self._pair_names[pid])
+                        names.append(pair_names[pid])
                         distances.append(d)
-                        normals.append(n)
-            self._budget[todo] = measured - self.di
+                        normals.append(n.tolist())
+            measured -= di
+            self._budget[todo] = measured
         k = len(names)
         if k == 0:
             return DamperBatch.empty(model.nv)
-        # rows n' J_p = ([n, p x n] @ J_world) * support mask, drifts n' Jdot_p v, all at once
+        # Each term: a witness point p (world) fixed in the body of joint j, direction n. With the
+        # joint's world spatial velocity V = (v, w) = J_j v and drift acceleration A = (a, alpha)
+        # = dJ_j v (both at the world origin, J_j = data.J masked to j's support):
+        #   row   = [n, p x n]' J_j            (d_dot = row . v, the n' J_p of eq. 7)
+        #   drift = n' a_p = [n, p x n]' A + n . (w x v_p),  v_p = v + w x p  (n' Jdot_p v)
         items_t = np.array(term_item)
         P = np.array(term_point)  # (T, 3) witness points, world
         N = np.array(normals)
@@ -701,21 +761,16 @@ class CollisionAvoidance:
         W = np.empty((len(items_t), 6))
         W[:, :3] = N
         W[:, 3:] = np.einsum("ijk,tj,tk->ti", _LEVI_CIVITA, P, N)  # p x n
-        J_terms = (W @ data.J) * self._item_masks[items_t]  # (T, nv)
-        # drift n' a_p of each witness point (fixed in its joint's body, qdd = 0): with the joint's
-        # world-axes velocity (v_o, w) and acceleration (a, alpha) at its origin and r = p - origin,
-        # a_p = a + w x v_o + alpha x r + w x (w x r)
-        va = np.array([x for j in self._item_joint[items_t].tolist()
-                       for x in (data.v[j].vector, data.a[j].vector)]).reshape(-1, 4, 3)
-        world = np.matmul(va, R_items[items_t].transpose(0, 2, 1))  # (T, 4, 3): v_o, w, a, alpha
-        w_t = world[:, 1]
-        r = P - t_items[items_t]
-        triple = np.einsum("ijk,ti,tsj,tsk->t", _LEVI_CIVITA, N,
-                           world[:, 1::2], np.stack((world[:, 0], r), axis=1))  # n.(w x v_o) + n.(alpha x r)
-        # n.a, n.w, w.r, n.r, w.w
-        dots = np.einsum("tsi,tsi->ts", np.stack((N, N, w_t, N, w_t), axis=1),
-                         np.stack((world[:, 2], w_t, r, r, w_t), axis=1))
-        n_drift_t = dots[:, 0] + triple + dots[:, 1] * dots[:, 2] - dots[:, 3] * dots[:, 4]
+        masks = self._item_masks[items_t]  # (T, nv)
+        J_world = data.J
+        J_terms = W @ J_world
+        J_terms *= masks  # (T, nv)
+        Mv = masks * v  # (T, nv): v restricted to each term's support
+        V = Mv @ J_world.T  # (T, 6)
+        A = Mv @ data.dJ.T  # (T, 6)
+        w_t = V[:, 3:]
+        v_p = V[:, :3] + np.einsum("ijk,tj,tk->ti", _LEVI_CIVITA, w_t, P)
+        n_drift_t = (W * A).sum(1) + np.einsum("ijk,ti,tj,tk->t", _LEVI_CIVITA, N, w_t, v_p)
         if len(items_t) == k:  # no self pair: one term per row, in row order
             rows = J_terms
             n_drift = n_drift_t

@@ -22,6 +22,7 @@ Every topic is RELIABLE / VOLATILE, as the bridge's.
 from __future__ import annotations
 
 import array
+import gc
 import os
 import sys
 import time
@@ -100,6 +101,9 @@ class ControllerNode(LifecycleNode):
         self.latencies_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.tick_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.qp_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        #: parts of the latency: state message -> RobotState, command fill + publish call
+        self.state_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        self.publish_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.ticks = 0
 
     # ---------------------------------------------------------------------------- lifecycle
@@ -142,6 +146,11 @@ class ControllerNode(LifecycleNode):
         self._cmd.names = self._names
         self._cmd.modes = self._modes
         self.get_logger().info(f"configured: {p.robot} on {p.ladder}, mode {p.mode}, {p.execution}")
+        # the models, geometries and messages built above live as long as the node: moved out of
+        # the collector's generations, the per-tick garbage stays cheap to collect (no full
+        # collections walking them mid-tick)
+        gc.collect()
+        gc.freeze()
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -268,13 +277,20 @@ class ControllerNode(LifecycleNode):
             stance = fixtures.get(self.params.initial_stance, self.robot, self.env)[0]
             c.reset(state, stance)
             self._reset_pending = False
+        t_state = time.perf_counter()
         out = c.tick(state)
+        # the command goes out first; everything else (grippers, controller/state, diagnostics,
+        # statistics) follows its publish call
+        t_cmd = time.perf_counter()
         cmd = self._cmd
-        cmd.header.stamp.sec = int(stamp // _NS)
-        cmd.header.stamp.nanosec = int(stamp % _NS)
+        cmd.header.stamp.sec = stamp // _NS
+        cmd.header.stamp.nanosec = stamp % _NS
         cmd.values = array.array("d", out.values.tobytes())
         self.pub_command.publish(cmd)
-        self.latencies_ms.append((time.perf_counter() - self._received_at) * 1e3)
+        t_sent = time.perf_counter()
+        self.latencies_ms.append((t_sent - self._received_at) * 1e3)
+        self.state_ms.append((t_state - self._received_at) * 1e3)
+        self.publish_ms.append((t_sent - t_cmd) * 1e3)
         for g in out.grippers:
             msg = GripperCommand(hand=g.hand, command=_GRIPPER[g.command], position=float(g.position))
             msg.header.stamp = to_time(stamp)
@@ -298,7 +314,8 @@ class ControllerNode(LifecycleNode):
 
     def latency_stats(self) -> dict[str, float]:
         out = {}
-        for name, values in (("latency", self.latencies_ms), ("tick", self.tick_ms), ("qp", self.qp_ms)):
+        for name, values in (("latency", self.latencies_ms), ("tick", self.tick_ms), ("qp", self.qp_ms),
+                             ("state", self.state_ms), ("publish", self.publish_ms)):
             if values:
                 a = np.fromiter(values, float)
                 out.update({f"{name}_p50_ms": float(np.percentile(a, 50)), f"{name}_p99_ms": float(np.percentile(a, 99)),

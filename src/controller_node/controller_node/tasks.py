@@ -7,12 +7,13 @@ its rows; it keeps its last error for diagnostics.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
-from .constraints import cross, skew
+from .constraints import skew
 from .params import TaskGains
 
 
@@ -48,7 +49,11 @@ class KinematicsView:
 
 
 def _damping(k: float) -> float:
-    return 2.0 * np.sqrt(k)
+    return 2.0 * math.sqrt(k)
+
+
+def _norm(e: np.ndarray) -> float:
+    return math.sqrt(float(e @ e))
 
 
 class Task:
@@ -84,7 +89,7 @@ class ComTask(Task):
     def rows(self, view: KinematicsView) -> TaskRows:
         d = view.data
         error = self.position - d.com[0]
-        self.last_error = float(np.linalg.norm(error))
+        self.last_error = _norm(error)
         a_des = self.acceleration + _damping(self.stiffness) * (self.velocity - d.vcom[0]) + self.stiffness * error
         return TaskRows(d.Jcom, d.acom[0], a_des, self.weight * self.axis_weights)
 
@@ -111,7 +116,7 @@ class PostureTask(Task):
 
     def rows(self, view: KinematicsView) -> TaskRows:
         error = self.q_joints - view.q[7:]
-        self.last_error = float(np.linalg.norm(error))
+        self.last_error = _norm(error)
         a_des = self.a_joints + _damping(self.stiffness) * (self.v_joints - view.v[6:]) + self.stiffness * error
         return TaskRows(self._J, self._zero, a_des, self.weight * self.joint_weights, slice(6, 6 + self.na))
 
@@ -135,7 +140,7 @@ class BaseOrientationTask(Task):
     def rows(self, view: KinematicsView) -> TaskRows:
         R = pin.Quaternion(view.q[3:7]).normalized().toRotationMatrix()
         error = pin.log3(R.T @ self.R_world_base)
-        self.last_error = float(np.linalg.norm(error))
+        self.last_error = _norm(error)
         a_des = _damping(self.stiffness) * (self.omega_in_base - view.v[3:6]) + self.stiffness * error
         return TaskRows(self._J, np.zeros(3), a_des, np.full(3, self.weight), slice(3, 6))
 
@@ -162,6 +167,8 @@ class FrameTask(Task):
         self.velocity = np.zeros(6)
         self.acceleration = np.zeros(6)
         self.position_error = np.zeros(3)
+        self._weights_key: tuple[float, float] | None = None
+        self._weights = np.zeros(6)
 
     def set_target(self, T_world_target: pin.SE3, velocity=None, acceleration=None) -> None:
         self.T_world_target = T_world_target
@@ -173,23 +180,31 @@ class FrameTask(Task):
         return pin.SE3(M.rotation, M.translation + M.rotation @ self.offset)
 
     def rows(self, view: KinematicsView) -> TaskRows:
-        M = view.data.oMf[self.frame_id]
-        r = M.rotation @ self.offset
-        J = view.frame_jacobian(self.frame_id).copy()
+        data, fid = view.data, self.frame_id
+        M = data.oMf[fid]
+        R = M.rotation
+        r = R @ self.offset
+        J = pin.getFrameJacobian(view.model, data, fid, pin.LOCAL_WORLD_ALIGNED)  # a new array
         J[:3] -= skew(r) @ J[3:]
-        vel = view.frame_velocity(self.frame_id)
-        omega = vel[3:]
-        acc = view.frame_drift(self.frame_id)
-        drift = acc.copy()
-        drift[:3] += cross(acc[3:], r) + cross(omega, cross(omega, r))
-        v_point = vel[:3] + cross(omega, r)
-        position = M.translation + r
-        e_pos = self.T_world_target.translation - position
-        e_rot = pin.log3(self.T_world_target.rotation @ M.rotation.T)  # world axes
+        vx, vy, vz, wx, wy, wz = pin.getFrameVelocity(view.model, data, fid, pin.LOCAL_WORLD_ALIGNED).vector.tolist()
+        acc = pin.getFrameClassicalAcceleration(view.model, data, fid, pin.LOCAL_WORLD_ALIGNED).vector
+        ax, ay, az, bx, by, bz = acc.tolist()
+        rx, ry, rz = r.tolist()
+        cx, cy, cz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx  # w x r
+        # drift of the point: a + alpha x r + w x (w x r)
+        drift = np.array([ax + (by * rz - bz * ry) + (wy * cz - wz * cy),
+                          ay + (bz * rx - bx * rz) + (wz * cx - wx * cz),
+                          az + (bx * ry - by * rx) + (wx * cy - wy * cx), bx, by, bz])
+        target = self.T_world_target
+        e_pos = target.translation - (M.translation + r)
+        e_rot = pin.log3(target.rotation @ R.T)  # world axes
         self.position_error = e_pos
-        self.last_error = float(np.linalg.norm(e_pos))
-        error = np.concatenate([e_pos, e_rot])
-        velocity = np.concatenate([v_point, omega])
+        self.last_error = _norm(e_pos)
+        error = np.concatenate((e_pos, e_rot))
+        velocity = np.array([vx + cx, vy + cy, vz + cz, wx, wy, wz])  # point velocity, angular velocity
         a_des = self.acceleration + _damping(self.stiffness) * (self.velocity - velocity) + self.stiffness * error
-        weights = np.array([self.weight] * 3 + [self.weight * self.orientation_weight] * 3)
-        return TaskRows(J, drift, a_des, weights)
+        key = (self.weight, self.orientation_weight)
+        if key != self._weights_key:
+            self._weights_key = key
+            self._weights = np.array([self.weight] * 3 + [self.weight * self.orientation_weight] * 3)
+        return TaskRows(J, drift, a_des, self._weights)

@@ -20,16 +20,27 @@ regularisations keep H positive definite. ``build()`` returns the problem as a v
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
-from .constraints import (GRIP_DIRECTIONS, ActiveContact, CollisionAvoidance, DamperBatch, DamperRow, cross,
-                          joint_acceleration_bounds, skew)
+from .constraints import (_LEVI_CIVITA, GRIP_DIRECTIONS, ActiveContact, CollisionAvoidance, DamperBatch, DamperRow,
+                          JointAccelerationBounds, _support_mask, cross, joint_acceleration_bounds, skew)
 from .params import ControllerParams
 from .qp import _SENSE_EQUALITY, DAQP_INF, DaqpSolver, QpFailure, QpProblem, QpSolution, make_solver
 from .tasks import KinematicsView, Task
+
+
+#: flat (row-major 6x6) indices in X = [[I, -[p]x], [0, I]] of (x, y, z) and of (-x, -y, -z):
+#: X[1,5] = x, X[2,3] = y, X[0,4] = z; X[2,4] = -x, X[0,5] = -y, X[1,3] = -z
+_SKEW_POS = np.array([11, 15, 4])
+_SKEW_NEG = np.array([16, 5, 9])
+
+
+_NO_POINTS = np.zeros((0, 3))  # point forces of a grasp
+_NO_POINTS.flags.writeable = False
 
 
 @dataclass
@@ -125,6 +136,20 @@ class _Workspace:
                 row_blocks.append(("contact_force", r + kp, r + kp + 1))
                 r += kp + 1
         self.layout = [tuple(entry) for entry in layout]  # (contact, var start, var stop, row, force row)
+        # batched contact kinematics: each reference point is fixed in its frame's parent joint
+        model = wb.model
+        k = len(contacts)
+        frames = [model.frames[c.frame_id] for c in contacts]
+        self.contact_joints = [int(f.parentJoint) for f in frames]
+        self.point_in_joint = np.array([f.placement.act(c.reference_in_frame) for f, c in zip(frames, contacts)],
+                                       dtype=float).reshape(k, 3)
+        self.R_joint_frame = np.array([f.placement.rotation for f in frames], dtype=float).reshape(k, 3, 3)
+        self.contact_masks = np.array([_support_mask(model, j) for j in self.contact_joints]).reshape(k, wb.nv)
+        self.X = np.zeros((k, 6, 6))  # [[I, -[p]x], [0, I]]: world-origin spatial -> point, world axes
+        self.X[:, np.arange(6), np.arange(6)] = 1.0
+        self.Jc = np.empty((k, 6, wb.nv))
+        self.VA = np.empty((k, 6, 2))  # joint spatial velocity, drift acceleration (world origin)
+        self.unilateral = [i for i, c in enumerate(contacts) if not c.bilateral]
         self.m_fixed = r
         m_max = r + cap
         self.variable_blocks = variable_blocks
@@ -189,6 +214,9 @@ class WholeBodyQP:
         self.q_upper = model.upperPositionLimit[7:].copy()
         self.v_limit = model.velocityLimit[6:].copy()
         self.collision = collision
+        p = params.qp
+        self._joint_bounds = JointAccelerationBounds(self.q_lower, self.q_upper, self.v_limit, p.joint_limit_horizon_s,
+                                                     p.joint_acceleration_bound, p.joint_limit_margin)
         self.view = KinematicsView(model, self.data)
         self.solver = make_solver(params.qp.solver, params.qp.time_limit_s, params.qp.iter_limit)
         self._zero_v = np.zeros(model.nv)
@@ -200,9 +228,12 @@ class WholeBodyQP:
 
     # ------------------------------------------------------------------------------------
     def update(self, q: np.ndarray, v: np.ndarray) -> None:
-        """Pinocchio terms for this state: M, h, joint Jacobians, CoM (+ Jacobian, drift), drifts."""
+        """Pinocchio terms for this state: M, h, joint Jacobians and their time variation, CoM
+        (+ Jacobian, drift), frame placements, drifts."""
         model, data = self.model, self.data
         pin.computeAllTerms(model, data, q, v)  # M (full symmetric), nle, J, Jcom, com
+        # dJ (world): drifts of the contact reference points and damper witness points (~4 us)
+        pin.computeJointJacobiansTimeVariation(model, data, q, v)
         pin.forwardKinematics(model, data, q, v, self._zero_v)  # data.a = drift accelerations
         pin.centerOfMass(model, data, pin.ACCELERATION, False)  # com, vcom, acom (drift)
         pin.updateFramePlacements(model, data)
@@ -213,6 +244,40 @@ class WholeBodyQP:
         self.solver = make_solver(name, self.params.qp.time_limit_s, self.params.qp.iter_limit)
 
     # ------------------------------------------------------------------------------------
+    def _contact_batch(self, ws: "_Workspace") -> tuple[np.ndarray, np.ndarray]:
+        """All contacts of the workspace at once: Jacobians (k, 6, nv) of the reference points
+        (linear rows at the point, world axes: LOCAL_WORLD_ALIGNED) and their drifts (k, 6)
+        (classical acceleration with qdd = 0). Sets ``self._R_frames`` (k, 3, 3), world <- frame.
+
+        With J_j the world Jacobian masked to the support of the point's joint j, V = (v, w) =
+        J_j v and A = (a, alpha) = dJ_j v (spatial, world origin) and X = [[I, -[p]x], [0, I]]:
+        J_point = X J_j, velocity X V = (v_p, w), drift X A + (w x v_p, 0)."""
+        data = self.data
+        oMi = data.oMi
+        H = np.array([oMi[j].homogeneous for j in ws.contact_joints])  # (k, 4, 4)
+        R_joint = H[:, :3, :3]
+        self._R_frames = np.matmul(R_joint, ws.R_joint_frame)
+        p = np.matmul(R_joint, ws.point_in_joint[:, :, None])[:, :, 0]
+        p += H[:, :3, 3]  # (k, 3) reference points, world
+        X = ws.X
+        flat = X.reshape(len(p), 36)
+        flat[:, _SKEW_POS] = p
+        flat[:, _SKEW_NEG] = -p
+        masks = ws.contact_masks
+        J_world = data.J
+        Jc = np.matmul(X, J_world, out=ws.Jc)
+        Jc *= masks[:, None, :]
+        Mv = masks * self.view.v
+        VA = ws.VA
+        np.matmul(Mv, J_world.T, out=VA[:, :, 0])
+        np.matmul(Mv, data.dJ.T, out=VA[:, :, 1])
+        XVA = np.matmul(X, VA)  # (k, 6, 2): (v_p, w), (a + alpha x p, alpha)
+        w = XVA[:, 3:, 0]
+        v_p = XVA[:, :3, 0]
+        drift = XVA[:, :, 1].copy()
+        drift[:, :3] += np.einsum("ijk,tj,tk->ti", _LEVI_CIVITA, w, v_p)  # + w x v_p
+        return Jc, drift
+
     def _contact_kinematics(self, contact: ActiveContact):
         """Jacobian (6, nv) of the contact reference point, its drift, and the wrench map."""
         model, data = self.model, self.data
@@ -401,20 +466,24 @@ class WholeBodyQP:
         np.subtract(self.tau_max, h[6:], out=bu[n + 6:n + nv])
         np.subtract(-self.tau_max, h[6:], out=bl[n + 6:n + nv])
         # joint limits as bounds on qdd
-        bl[6:nv], bu[6:nv] = joint_acceleration_bounds(
-            q[7:], v[6:], self.q_lower, self.q_upper, self.v_limit, p.joint_limit_horizon_s,
-            p.joint_acceleration_bound, p.joint_limit_margin)
+        self._joint_bounds.fill(q[7:], v[6:], bl[6:nv], bu[6:nv])
         layout = []
         kv = p.contact_velocity_gain
-        for c, s0, s1, r, rf in ws.layout:
-            Jc, drift, phi, _R = self._contact_kinematics(c)
-            A[:nv, s0:s1] = -(Jc.T @ phi)
-            A[r:r + 6, :nv] = Jc
-            rhs = bu[n + r:n + r + 6]
-            np.multiply(Jc @ v, -kv, out=rhs)
-            rhs -= drift
-            bl[n + r:n + r + 6] = rhs
+        k = len(ws.layout)
+        if k:
+            Jc_all, drift_all = self._contact_batch(ws)
+            r0 = ws.layout[0][3]
+            A[r0:r0 + 6 * k, :nv] = Jc_all.reshape(6 * k, nv)  # the contacts' rows follow each other
+            rhs = bu[n + r0:n + r0 + 6 * k]
+            np.matmul(Jc_all, v, out=rhs.reshape(k, 6))
+            rhs *= -kv
+            rhs -= drift_all.reshape(-1)
+            bl[n + r0:n + r0 + 6 * k] = rhs
+        for i, (c, s0, s1, r, rf) in enumerate(ws.layout):
+            Jc = Jc_all[i]
             if c.bilateral:
+                phi = c.wrench_map(None)
+                np.negative(Jc.T, out=A[:nv, s0:s1])
                 force, torque = c.grip_limits()
                 bu[s0:s0 + 3] = force
                 bu[s0 + 3:s1] = torque
@@ -424,6 +493,10 @@ class WholeBodyQP:
                 bu[n + rf:n + rf + g_rows] = force
                 bl[n + rf:n + rf + g_rows] = -force
             else:
+                phi = c.wrench_map(self._R_frames[i])
+                block = A[:nv, s0:s1]
+                np.matmul(Jc.T, phi, out=block)
+                np.negative(block, out=block)
                 kp = c.points_in_frame.shape[0]
                 bl[n + rf:n + rf + kp] = c.min_normal_force * c.scale
                 lo_total, hi_total = c.normal_force_window()
@@ -507,14 +580,17 @@ class WholeBodyQP:
         qdd = x[:nv]
         results: dict[str, ContactResult] = {}
         for c, sl, phi, Jc in self._contact_layout:
-            wrench = phi @ x[sl]
+            xs = x[sl]
             if c.bilateral:
-                forces = np.zeros((0, 3))
-                normal = float(np.linalg.norm(wrench[:3]))
+                wrench = xs.copy()  # Phi = I
+                forces = _NO_POINTS
+                f = wrench[:3]
+                normal = math.sqrt(float(f @ f))
             else:
+                wrench = phi @ xs
                 kpts, _, ng = c.generators.shape
-                forces = np.matmul(c.generators, x[sl].reshape(kpts, ng, 1))[:, :, 0]
-                normal = float(np.sum(forces * c.normals_in_world))
+                forces = np.matmul(c.generators, xs.reshape(kpts, ng, 1))[:, :, 0]
+                normal = float(c.total_normal_row() @ xs)  # sum of the points' normal forces
             results[c.limb] = ContactResult(c.limb, wrench, forces, normal)
         data = self.data
         if source is not None:  # the workspace's actuated dynamics rows: tau = [M_a, -(J_c' Phi)_a] x + h_a
