@@ -41,16 +41,70 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start-fixture", default="", help="climb_core.fixtures name to start from (default: the design's)")
     ap.add_argument("--reference", default="", help="design on this ladder instead: a ladder name / file, or "
                     "inclination/spacing (e.g. 85/0.30) applied to the design's reference ladder")
+    ap.add_argument("--all-variants", action="store_true",
+                    help="build every variant listed under `variants:` in design.yaml (each on its reference ladder)")
     ap.add_argument("--no-write", action="store_true", help="do not write library.yaml (design development)")
     ap.add_argument("--dump", default="", help="save every designed configuration (and the failing one) to this .npz")
     args = ap.parse_args(argv)
 
     from climb_core.errors import ClimbError
     try:
+        if args.all_variants:
+            from planner_node.primitives import load_design
+
+            worst = 0
+            for key in (load_design(args.robot, args.strategy).get("variants") or {}):
+                print(f"variant {key}", flush=True)
+                worst = max(worst, build(argparse.Namespace(**{**vars(args), "reference": str(key)})))
+            return worst
         return build(args)
     except ClimbError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+
+
+def variant_overrides(design: dict, reference: str) -> dict:
+    """The `variants:` entry of design.yaml for an inclination/spacing reference (e.g. "85/0.30"),
+    {} when there is none. Keys are compared as numbers (85/0.3 == 85/0.30)."""
+    from climb_core.errors import SpecError
+
+    variants = design.get("variants") or {}
+    if not isinstance(variants, dict):
+        raise SpecError("design.variants", "must be a mapping inclination/spacing -> overrides")
+    if not reference or "/" not in reference or reference.endswith((".yaml", ".yml")):
+        return {}
+
+    def key(text: str, field: str) -> tuple[float, float]:
+        try:
+            a, b = (float(x) for x in str(text).split("/"))
+        except ValueError:
+            raise SpecError(field, f"expected inclination/spacing like 85/0.30, got {text!r}") from None
+        return round(a, 6), round(b, 6)
+
+    want = key(reference, "reference")
+    for name, over in variants.items():
+        if key(name, f"design.variants.{name}") == want:
+            if not isinstance(over, dict):
+                raise SpecError(f"design.variants.{name}", "must be a mapping of design overrides")
+            return over
+    return {}
+
+
+def merge_design(base: dict, over: dict, field: str = "design") -> dict:
+    """Deep merge of a variant's overrides into the design: mappings are merged key by key,
+    anything else (numbers, lists such as `via` or `search_base_offsets`) replaced; a null value
+    deletes the key (e.g. a pelvis cue the variant does not want)."""
+    import copy
+
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if v is None:
+            out.pop(k, None)
+        elif isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = merge_design(out[k], v, f"{field}.{k}")
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
 
 
 def build(args: argparse.Namespace) -> int:
@@ -64,7 +118,7 @@ def build(args: argparse.Namespace) -> int:
     from climb_core.ladder import load_scenario
     from climb_core.robot import load_robot
     from planner_node import pcik
-    from planner_node.adapt import AdaptContext, build_path, ground_foot_x, stance_anchor
+    from planner_node.adapt import AdaptContext, build_path, failure_name, ground_foot_x, stance_anchor
     from planner_node.primitives import (DESIGN_FILE, Primitive, PrimitiveLibrary, library_dir, reference_key,
                                          variant_file_name,
                                          load_design, parse_primitive, point_to_ladder, save_library, to_ladder,
@@ -72,14 +126,25 @@ def build(args: argparse.Namespace) -> int:
     from planner_node.settings import load_settings, replace
 
     design = load_design(args.robot, args.strategy)
+    # per-variant cue overrides (design.yaml `variants:`): only for a variant's build, never the main library
+    design = merge_design({k: v for k, v in design.items() if k != "variants"},
+                          variant_overrides(design, args.reference))
     robot = load_robot(design.get("robot", args.robot))
     scenario = reference_scenario(design["reference_ladder"], args.reference)
     env = build_environment(scenario)
     settings = load_settings()
     # the designed way-points keep the full environment margins from the robot's own links too,
     # so that the adaptation (which allows closer self distances) has room around them
-    settings = replace(settings, "pcik", self_collision_margin=settings.pcik.collision_margin)
-    settings = replace(settings, "planning", self_collision_margin=settings.planning.collision_margin)
+    # (a variant may ask for less with `design_self_collision_margin` [m]: never below the IK's own
+    # self margin, so its way-points still satisfy every margin the planner's checks use)
+    self_margin = float(design.get("design_self_collision_margin", settings.pcik.collision_margin))
+    if not settings.pcik.self_collision_margin <= self_margin <= settings.pcik.collision_margin:
+        raise SpecError("design.design_self_collision_margin",
+                        f"must be within [{settings.pcik.self_collision_margin}, {settings.pcik.collision_margin}] m")
+    settings = replace(settings, "pcik", self_collision_margin=self_margin)
+    settings = replace(settings, "planning", self_collision_margin=max(settings.planning.self_collision_margin,
+                                                                        min(self_margin,
+                                                                            settings.planning.collision_margin)))
     cfg = feasibility.load_config()
     plan_cfg = AdaptContext(robot, env, _empty_library(robot, design), settings, cfg).check_cfg
     H = design["holds"]
@@ -149,7 +214,8 @@ def build(args: argparse.Namespace) -> int:
                     return res.q
                 raise InfeasibleError(chk.violated[0], f"{what}: {chk.summary()}")
         if not res.success:
-            raise InfeasibleError(res.failure or "pcik", f"{what}: {pcik.describe_failure(res)}")
+            named = failure_name(res.check) if res.check is not None and not res.check.feasible else ""
+            raise InfeasibleError(res.failure or "pcik", f"{what}: {pcik.describe_failure(res)} {named}")
         return res.q
 
     offsets = [np.array(o, dtype=float) for o in design.get("search_base_offsets", [[0.0, 0.0, 0.0]])]
@@ -171,6 +237,8 @@ def build(args: argparse.Namespace) -> int:
                         raise InfeasibleError(chk.violated[0], f"{what}: without {excl[0][0]}: {chk.summary()}")
                 return q_out
             except InfeasibleError as exc:
+                if args.verbose:
+                    print(f"    {what} offset {off}: {exc}", file=sys.stderr)
                 first = first or exc
         raise first
 
@@ -202,14 +270,18 @@ def build(args: argparse.Namespace) -> int:
 
     ctx = AdaptContext(robot, env, _empty_library(robot, design), settings, cfg)
     order = []
-    for name in (args.sequences.split(",") if args.sequences else list(design["sequences"])):
+    # walked in climbing order: a `first_cycle` (the cycle from the ground) comes before `cycle`
+    # (the steady-state cycle from a rung), whatever their order in the file
+    walk = list(design["sequences"])
+    walk.sort(key=lambda n: {"approach": 0, "mount": 1, "first_cycle": 2, "cycle": 3}.get(n, 4))
+    for name in (args.sequences.split(",") if args.sequences else walk):
         order += list(design["sequences"].get(name, []))
     prims: dict[str, Primitive] = {}
     mount_height = hands_height = None
     t_start = time.perf_counter()
 
     def design_one(name, q, stance, mount_height, hands_height):
-        spec = design["primitives"][name]
+        spec = primitive_spec(design, name)
         kind = spec["kind"]
         t0 = time.perf_counter()
         if kind == "com":
@@ -329,9 +401,26 @@ def build(args: argparse.Namespace) -> int:
             print(f"  {name:26s} {len(waypoints)} way-points  {time.perf_counter() - t0:5.2f} s", file=sys.stderr)
         return mount_height, hands_height, waypoints[-1], end_stance
 
+    fallback = bool(args.reference) and str(design.get("fallback", "")) == "main"
+    main_ctx = None
     try:
         for name in order:
-            mount_height, hands_height, q, stance = design_one(name, q, stance, mount_height, hands_height)
+            try:
+                mount_height, hands_height, q, stance = design_one(name, q, stance, mount_height, hands_height)
+            except InfeasibleError as exc:
+                if not fallback or name in prims:
+                    raise
+                # partial variant (design.yaml `fallback: main`): a primitive whose cues cannot be
+                # realised on this reference ladder is not stored; the walk goes on with the main
+                # library's primitive adapted by the planner itself (as the planner will do)
+                if main_ctx is None:
+                    from planner_node.primitives import load_library as _load_main
+
+                    main_lib = _load_main(args.robot, args.strategy, nq=robot.model.nq)
+                    main_ctx = AdaptContext(robot, env, main_lib, load_settings(), cfg)
+                q, stance = _adapt_with(main_ctx, name, q, stance)
+                print(f"  {name}: not designed ({exc.constraint if hasattr(exc, 'constraint') else exc}); "
+                      f"the main library's primitive adapts here", file=sys.stderr)
     finally:
         if args.dump:
             np.savez(args.dump, names=np.array([n for n, _ in dump]), q=np.array([x for _, x in dump]))
@@ -353,8 +442,9 @@ def build(args: argparse.Namespace) -> int:
         robot=robot.config.name, strategy=args.strategy, facing=str(design.get("facing", "forward")),
         reference_ladder=_scenario_dict(design["reference_ladder"], scenario),
         joint_names=tuple(robot.joint_names),
-        sequences={k: tuple(n for n in v if n in prims) for k, v in design["sequences"].items()
-                   if all(n in prims for n in v)} or {"cycle": tuple(prims)}, primitives=prims,
+        sequences=({k: tuple(n for n in v if n in prims) for k, v in design["sequences"].items()
+                    if all(n in prims for n in v)} or ({} if args.reference else {"cycle": tuple(prims)})),
+        primitives=prims,
         holds={k: float(v) for k, v in H.items()}, mount_height=float(mount_height),
         hands_above_feet_height=float(hands_height), initial_fixture=str(design.get("initial_fixture", "standing")),
         generated_by=f"scripts/make_primitives.py --robot {args.robot} --strategy {args.strategy}")
@@ -369,13 +459,54 @@ def build(args: argparse.Namespace) -> int:
         from planner_node.climb_planner import plan_climb
         from planner_node.primitives import load_library
 
-        lib2 = load_library(args.robot, args.strategy, nq=robot.model.nq, path=path)
-        res = plan_climb(robot, env, args.check_steps, library=lib2, settings=load_settings())
+        if args.reference:  # a variant: the planner as it runs (every library, this one nearest)
+            res = plan_climb(robot, env, args.check_steps, settings=load_settings())
+        else:
+            lib2 = load_library(args.robot, args.strategy, nq=robot.model.nq, path=path)
+            res = plan_climb(robot, env, args.check_steps, library=lib2, settings=load_settings())
         print(f"check: {args.check_steps}-step climb of {env.name}: success={res.success} "
               f"time={res.plan_time_s:.2f} s {res.failure_constraint} {res.failure_detail}")
         if not res.success:
             return 1
     return 0
+
+
+def _adapt_with(ctx, name: str, q, stance):
+    """The planner's Adapt-Primitive of the main library's primitive ``name`` from (q, stance):
+    the first of ``attempts_per_subtask`` attempts that succeeds (InfeasibleError otherwise)."""
+    from climb_core.errors import InfeasibleError
+    from planner_node.adapt import ClimbState, adapt_primitive
+    from planner_node.msp import Step, branch_rng
+
+    prim = ctx.library.primitives.get(name)
+    if prim is None:
+        raise InfeasibleError("design", f"{name}: not in the main library either")
+    last = None
+    for j in range(ctx.settings.planning.attempts_per_subtask):
+        out = adapt_primitive(ctx, prim, ClimbState(q, stance), j, branch_rng(ctx.settings.planning.seed, [j]))
+        if isinstance(out, Step):
+            return out.state.q, out.state.stance
+        last = out
+    raise InfeasibleError(last.constraint if last else "design", f"{name}: main library primitive: {last}")
+
+
+def primitive_spec(design: dict, name: str) -> dict:
+    """A primitive's design cues; ``same_as: <other>`` starts from another primitive's cues (e.g.
+    the first cycle's copy of a steady-state primitive), the entry's own keys on top."""
+    from climb_core.errors import SpecError
+
+    prims = design.get("primitives") or {}
+    if name not in prims:
+        raise SpecError(f"design.primitives.{name}", "not defined (named in a sequence)")
+    spec = dict(prims[name])
+    seen = {name}
+    while "same_as" in spec:
+        base = str(spec.pop("same_as"))
+        if base in seen or base not in prims:
+            raise SpecError(f"design.primitives.{name}.same_as", f"must name another primitive; got {base!r}")
+        seen.add(base)
+        spec = merge_design(dict(prims[base]), spec)
+    return spec
 
 
 def reference_scenario(default: str, override: str):

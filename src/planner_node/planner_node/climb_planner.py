@@ -107,18 +107,20 @@ def plan_climb(robot: Any, env: Any, steps: int, *, library: PrimitiveLibrary | 
     p = settings.planning
     if library is None:
         variants = load_variants(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
+        main = variants[0]  # library.yaml: the sub-task sequence and the start fixture
         lad = env.scenario.ladder
         variants = rank_variants(variants, float(lad.inclination_deg), float(lad.rung_spacing))
         library = variants[0]
     else:
         variants = [library]
+        main = library
     if tuple(library.joint_names) != tuple(robot.joint_names):
         raise SpecError("primitives.joint_names", f"library {library.robot}/{library.strategy} was made for "
                                                   f"other joints than robot {robot.config.name}")
     if start is None:
         from climb_core import fixtures
 
-        stance0, q0 = fixtures.get(library.initial_fixture, robot, env)
+        stance0, q0 = fixtures.get(main.initial_fixture, robot, env)
     else:
         q0, stance0 = start
     ctx = AdaptContext(robot, env, library, settings, feasibility_cfg)
@@ -128,13 +130,16 @@ def plan_climb(robot: Any, env: Any, steps: int, *, library: PrimitiveLibrary | 
         c = AdaptContext(robot, env, lib, settings, feasibility_cfg)
         c.stats = ctx.stats
         contexts.append(c)
-    subtasks = subtask_sequence(library, stance0, steps)
+    subtasks = subtask_sequence(main if not library.sequences.get("cycle") else library, stance0, steps)
     state0 = ClimbState(np.asarray(q0, dtype=float).copy(), stance0)
     per_variant = max(1, p.attempts_per_variant)
 
     def attempt(prim: Primitive, state: ClimbState, j: int, rng: np.random.Generator):
         # the nearest reference's primitive first; later attempts the next nearest references'
         k = min(j // per_variant, len(contexts) - 1)
+        # a partial variant lacks some primitives: the next library (by reference distance) that has it
+        while k + 1 < len(contexts) and prim.name not in contexts[k].library.primitives:
+            k += 1
         c = contexts[k]
         return adapt_primitive(c, c.library.primitives.get(prim.name, prim), state, j - k * per_variant, rng)
 
