@@ -620,6 +620,25 @@ class Controller:
         offset = self.limb_surface[limb][:3, 3]
         return com, pin.SE3(M.rotation.copy(), M.translation + M.rotation @ offset)
 
+    def _reference_motion(self, q_ref: np.ndarray, v_ref: np.ndarray, limb: str
+                          ) -> tuple[np.ndarray, np.ndarray, pin.SE3 | None, np.ndarray | None]:
+        """CoM [m] and its velocity [m/s], and the limb's contact surface pose and twist (world
+        axes, at the surface point: linear [m/s], angular [rad/s]) along the reference, from one
+        kinematics pass with velocity."""
+        model, data = self.model, self.ref_data
+        com = pin.centerOfMass(model, data, q_ref, v_ref, False).copy()
+        vcom = data.vcom[0].copy()
+        if not limb:
+            return com, vcom, None, None
+        fid = self.limb_frame_ids[limb]
+        pin.updateFramePlacement(model, data, fid)
+        M = data.oMf[fid]
+        r = M.rotation @ self.limb_surface[limb][:3, 3]
+        nu = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+        w = nu.angular
+        twist = np.concatenate([nu.linear + np.cross(w, r), w])
+        return com, vcom, pin.SE3(M.rotation.copy(), M.translation + r), twist
+
     def start_path(self, transition: Transition, moving_limb: str = "") -> None:
         """Track ``transition.path`` from now; blend out today's offset from its first way-point."""
         self.reference = PathReference(self.model, transition.times, transition.path)
@@ -671,22 +690,17 @@ class Controller:
         s, sdot = ref.progress(t)
         w = 1.0 - s
         limb = self._path_limb
-        com, T = self._reference_quantities(q_ref, limb)
-        # reference velocities from a short step ahead (the reference is smooth)
-        dt = 1e-3
-        q_next = pin.integrate(self.model, q_ref, v_ref * dt)
-        com_next, T_next = self._reference_quantities(q_next, limb)
+        com, vcom, T, twist = self._reference_motion(q_ref, v_ref, limb)
         b = self._blend
-        self.com_task.set_target(com + w * b["com"], (com_next - com) / dt - sdot * b["com"])
+        self.com_task.set_target(com + w * b["com"], vcom - sdot * b["com"])
         self.posture_task.set_target(q_ref[7:] + w * b["joints"], v_ref[6:] - sdot * b["joints"])
         R_base = pin.exp3(w * b["base"]) @ pin.Quaternion(q_ref[3:7]).normalized().toRotationMatrix()
         self.base_task.set_target(R_base)
         if limb:
             p = T.translation + w * b["limb_p"]
             R = pin.exp3(w * b["limb_R"]) @ T.rotation
-            lin = (T_next.translation - T.translation) / dt - sdot * b["limb_p"]
-            ang = pin.log3(T_next.rotation @ T.rotation.T) / dt
-            self.contact_body_tasks[limb].set_target(pin.SE3(R, p), np.concatenate([lin, ang]))
+            lin = twist[:3] - sdot * b["limb_p"]
+            self.contact_body_tasks[limb].set_target(pin.SE3(R, p), np.concatenate([lin, twist[3:]]))
             self._creep_base = pin.SE3(R, p)
             if s >= ref.last_segment_start and self.target_surface:
                 # approach: the damper between the limb and its target surface goes off

@@ -55,19 +55,32 @@ class PathReference:
                 m[k] = pin.difference(self.model, self.path[k - 1], self.path[k + 1]) / du
         return m
 
+    def _segment(self, s: float) -> tuple[int, float, float]:
+        """(way-point index k, position a in [0, 1] on segment k, segment length in u)."""
+        k = int(np.searchsorted(self._u, s, side="right")) - 1
+        k = min(max(k, 0), len(self.path) - 2)
+        span = float(self._u[k + 1] - self._u[k])
+        a = 0.0 if span <= 0 else min(max((s - self._u[k]) / span, 0.0), 1.0)
+        return k, a, span
+
+    def _local(self, k: int, a: float, span: float) -> tuple[np.ndarray, np.ndarray]:
+        """Hermite offset from way-point k (tangent space at path[k]) and its derivative along u."""
+        a2, a3 = a * a, a * a * a
+        h10, h01, h11 = a3 - 2.0 * a2 + a, -2.0 * a3 + 3.0 * a2, a3 - a2
+        d10, d01, d11 = 3.0 * a2 - 4.0 * a + 1.0, -6.0 * a2 + 6.0 * a, 3.0 * a2 - 2.0 * a
+        chord = pin.difference(self.model, self.path[k], self.path[k + 1])
+        m0, m1 = self._tangents[k], self._tangents[k + 1]
+        local = h01 * chord + span * (h10 * m0 + h11 * m1)
+        d_local_du = (d01 * chord) / span + d10 * m0 + d11 * m1
+        return local, d_local_du
+
     def _at(self, s: float) -> np.ndarray:
         if len(self.path) == 1:
             return self.path[0].copy()
-        k = int(np.searchsorted(self._u, s, side="right")) - 1
-        k = min(max(k, 0), len(self.path) - 2)
-        span = self._u[k + 1] - self._u[k]
+        k, a, span = self._segment(s)
         if span <= 0:
             return self.path[k + 1].copy()
-        a = min(max((s - self._u[k]) / span, 0.0), 1.0)
-        a2, a3 = a * a, a * a * a
-        h10, h01, h11 = a3 - 2.0 * a2 + a, -2.0 * a3 + 3.0 * a2, a3 - a2
-        chord = pin.difference(self.model, self.path[k], self.path[k + 1])
-        local = h01 * chord + span * (h10 * self._tangents[k] + h11 * self._tangents[k + 1])
+        local, _ = self._local(k, a, span)
         return pin.integrate(self.model, self.path[k], local)
 
     def progress(self, t: float) -> tuple[float, float]:
@@ -75,16 +88,21 @@ class PathReference:
         s, ds = min_jerk(t / self.duration)
         return s, ds / self.duration
 
-    def sample(self, t: float, dt: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
-        """q_ref (nq,) and v_ref (nv,) at t [s] (v by a central difference on the path axis)."""
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """q_ref (nq,) and v_ref (nv,) at t [s]; v = dq/du * du/dt, the Hermite derivative mapped
+        to the tangent space at q_ref (``pin.dIntegrate``)."""
         s, sdot = self.progress(t)
-        q = self._at(s)
+        if len(self.path) == 1:
+            return self.path[0].copy(), np.zeros(self.model.nv)
+        k, a, span = self._segment(s)
+        if span <= 0:
+            return self.path[k + 1].copy(), np.zeros(self.model.nv)
+        local, d_local = self._local(k, a, span)
+        q = pin.integrate(self.model, self.path[k], local)
         if sdot <= 0.0:
             return q, np.zeros(self.model.nv)
-        h = 1e-3
-        lo, hi = max(s - h, 0.0), min(s + h, 1.0)
-        dq_ds = pin.difference(self.model, self._at(lo), self._at(hi)) / (hi - lo)
-        return q, dq_ds * sdot
+        J = pin.dIntegrate(self.model, self.path[k], local, pin.ArgumentPosition.ARG1)
+        return q, J @ (d_local * sdot)
 
     @property
     def last_segment_start(self) -> float:
