@@ -64,8 +64,14 @@ class InProcessRunner:
         activate the posture fixture's holds (or ``stance``)."""
         from sim_bridge.backend import ResetRequest
 
+        from climb_core.environment import build_environment
+
         sim_state = backend.reset(ResetRequest(robot=robot, ladder=ladder, initial_posture=posture, q=q))
-        controller = Controller(backend.robot, params, backend.env, fsm_table)
+        # the controller knows the nominal ladder (what the planner planned on), never the
+        # simulator's perturbed one (rung offsets, moved rails): it finds those through F/T
+        nominal = build_environment(backend.scenario) if getattr(backend, "scenario", None) is not None \
+            else backend.env
+        controller = Controller(backend.robot, params, nominal, fsm_table)
         if stance is None:
             from climb_core import fixtures
 
