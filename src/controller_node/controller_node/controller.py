@@ -179,6 +179,7 @@ class Controller:
         self.qp_failures = 0
         self.saved_failures: list[pathlib.Path] = []
         self.dampers_released = 0  # ticks solved only after releasing dampers within the security distance
+        self._failing_since: float | None = None  # [s] first tick of the current run of infeasible QPs
         self._released_pairs: list[tuple[str, str]] = []
         self.fallback_active = False
         self._q_fallback: np.ndarray | None = None
@@ -275,14 +276,20 @@ class Controller:
         except QpFailure as failure:
             qp_status = QP_FAILED
             self._on_failure(failure)
-            if self.fsm.state != "failure":
+            if self._failing_since is None:
+                self._failing_since = self.time
+            in_grace = self.time - self._failing_since < self.params.qp.failure_grace_s - 1e-9
+            if self.fsm.state != "failure" and not in_grace:
                 self.fsm.fire(self, "qp_failure")
-            # one retry with the hold tasks (and contact set) the failure state just set
-            contacts = [self.contacts[limb] for limb in LIMBS if limb in self.contacts]
-            try:
-                result = self.wb.solve(contacts, self.active_tasks, self._disabled_pairs())
-            except QpFailure:
-                result = None
+            if not in_grace or self.fsm.state == "failure":
+                # one retry with the hold tasks (and contact set) the failure state just set
+                contacts = [self.contacts[limb] for limb in LIMBS if limb in self.contacts]
+                try:
+                    result = self.wb.solve(contacts, self.active_tasks, self._disabled_pairs())
+                except QpFailure:
+                    result = None
+        else:
+            self._failing_since = None
         fallback = False
         if result is None:  # the hold QP fails too: relaxed QP (no torque / joint limits), then
             fallback = True  # the equality-only KKT solve; torques saturated below

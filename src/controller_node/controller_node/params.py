@@ -27,6 +27,10 @@ class QpParams:
     failure_dir: str = param("build/qp_failures", unit="-",
                              description="failing QPs are saved here as .npz (relative to the project root)")
     max_saved_failures: int = param(50, unit="-", min=0, description="stop saving failing QPs after this many")
+    failure_grace_s: float = param(0.0, unit="s", min=0.0, description=(
+        "consecutive infeasible ticks tolerated before the FSM's qp_failure event (each one counted, saved "
+        "and answered with the relaxed solve, saturated, of the current tasks): an impact can make the QP "
+        "infeasible for a few ticks. 0 = fail on the first"))
     acceleration_regularization: float = param(1e-5, unit="-", min=1e-12, description="weight on |qdd|^2")
     force_regularization: float = param(1e-4, unit="1/N^2", min=1e-12,
                                         description="weight on the squared contact force variables")
