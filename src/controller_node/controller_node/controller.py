@@ -541,9 +541,25 @@ class Controller:
         # the contact points move with the limb (a rung off its planned place); the normals are
         # the environment's and stay as planned
         T = T_now * T_plan.inverse()
-        points = tuple(type(p)(T.act(p.position), p.normal) for p in planned.points)
+        if self._is_line_hold(planned):
+            # a sole on a round rung touches it along the rung's top line, wherever the sole is
+            # along the plan: the guarded approach measured how far the rung is along its normal,
+            # not where it is across (the limb's own tracking error). The line moves along the
+            # normal only.
+            n = np.asarray(planned.normals, float).mean(axis=0)
+            n /= np.linalg.norm(n)
+            shift = n * float(n @ (T_now.translation - T_plan.translation))
+            points = tuple(type(p)(np.asarray(p.position, float) + shift, p.normal) for p in planned.points)
+        else:
+            points = tuple(type(p)(T.act(p.position), p.normal) for p in planned.points)
         return Hold(planned.limb, planned.robot_surface, planned.env_surface, points, planned.friction,
                     planned.bilateral, planned.grip_force_limit)
+
+    def _is_line_hold(self, hold: Hold) -> bool:
+        """A unilateral hold on a cylinder (a foot on a round rung): a line contact."""
+        env = self.environment
+        surface = env.surfaces.get(hold.env_surface) if env is not None else None
+        return surface is not None and surface.shape == "cylinder" and not hold.bilateral
 
     def _disabled_pairs(self) -> frozenset[tuple[str, str]]:
         """(link, surface) pairs without dampers: limbs holding a surface, guards switched off.
