@@ -302,6 +302,26 @@ def _support_mask(model: pin.Model, joint_id: int) -> np.ndarray:
     return mask
 
 
+def frame_point_kinematics(model: pin.Model, data: pin.Data, frame_id: int, r_world: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """6D Jacobian (6, nv), drift Jdot v (6,) [m/s^2, rad/s^2] and velocity (6,) [m/s, rad/s] of
+    the point ``r_world`` [m] (world axes, from the frame origin) fixed in frame ``frame_id``,
+    world-aligned (needs the frame's joint Jacobians, placements, velocities and accelerations in
+    ``data``). Drift of the point: a + alpha x r + w x (w x r)."""
+    J = pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)  # a new array
+    J[:3] -= skew(r_world) @ J[3:]
+    vx, vy, vz, wx, wy, wz = pin.getFrameVelocity(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED).vector.tolist()
+    ax, ay, az, bx, by, bz = pin.getFrameClassicalAcceleration(
+        model, data, frame_id, pin.LOCAL_WORLD_ALIGNED).vector.tolist()
+    rx, ry, rz = r_world.tolist()
+    cx, cy, cz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx  # w x r
+    drift = np.array([ax + (by * rz - bz * ry) + (wy * cz - wz * cy),
+                      ay + (bz * rx - bx * rz) + (wz * cx - wx * cz),
+                      az + (bx * ry - by * rx) + (wx * cy - wy * cx), bx, by, bz])
+    velocity = np.array([vx + cx, vy + cy, vz + cz, wx, wy, wz])
+    return J, drift, velocity
+
+
 def point_jacobian_and_drift(model: pin.Model, data: pin.Data, joint_id: int,
                              point_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Linear Jacobian (3, nv) of the point fixed in ``joint_id``'s body that coincides with

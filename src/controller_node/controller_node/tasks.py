@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .constraints import skew
+from .constraints import frame_point_kinematics
 from .params import TaskGains
 
 
@@ -184,24 +184,13 @@ class FrameTask(Task):
         M = data.oMf[fid]
         R = M.rotation
         r = R @ self.offset
-        J = pin.getFrameJacobian(view.model, data, fid, pin.LOCAL_WORLD_ALIGNED)  # a new array
-        J[:3] -= skew(r) @ J[3:]
-        vx, vy, vz, wx, wy, wz = pin.getFrameVelocity(view.model, data, fid, pin.LOCAL_WORLD_ALIGNED).vector.tolist()
-        acc = pin.getFrameClassicalAcceleration(view.model, data, fid, pin.LOCAL_WORLD_ALIGNED).vector
-        ax, ay, az, bx, by, bz = acc.tolist()
-        rx, ry, rz = r.tolist()
-        cx, cy, cz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx  # w x r
-        # drift of the point: a + alpha x r + w x (w x r)
-        drift = np.array([ax + (by * rz - bz * ry) + (wy * cz - wz * cy),
-                          ay + (bz * rx - bx * rz) + (wz * cx - wx * cz),
-                          az + (bx * ry - by * rx) + (wx * cy - wy * cx), bx, by, bz])
+        J, drift, velocity = frame_point_kinematics(view.model, data, fid, r)
         target = self.T_world_target
         e_pos = target.translation - (M.translation + r)
         e_rot = pin.log3(target.rotation @ R.T)  # world axes
         self.position_error = e_pos
         self.last_error = _norm(e_pos)
         error = np.concatenate((e_pos, e_rot))
-        velocity = np.array([vx + cx, vy + cy, vz + cz, wx, wy, wz])  # point velocity, angular velocity
         a_des = self.acceleration + _damping(self.stiffness) * (self.velocity - velocity) + self.stiffness * error
         key = (self.weight, self.orientation_weight)
         if key != self._weights_key:

@@ -27,7 +27,7 @@ import numpy as np
 import pinocchio as pin
 
 from .constraints import (_LEVI_CIVITA, GRIP_DIRECTIONS, ActiveContact, CollisionAvoidance, DamperBatch, DamperRow,
-                          JointAccelerationBounds, _support_mask, cross, joint_acceleration_bounds, skew)
+                          JointAccelerationBounds, _support_mask, cross, frame_point_kinematics, joint_acceleration_bounds)
 from .params import ControllerParams
 from .qp import _SENSE_EQUALITY, DAQP_INF, DaqpSolver, QpFailure, QpProblem, QpSolution, make_solver
 from .tasks import KinematicsView, Task
@@ -284,17 +284,7 @@ class WholeBodyQP:
         fid = contact.frame_id
         R = data.oMf[fid].rotation
         r = R @ contact.reference_in_frame
-        J = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)  # a new array
-        J[:3] -= skew(r) @ J[3:]
-        wx, wy, wz = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).angular.tolist()
-        acc = pin.getFrameClassicalAcceleration(model, data, fid, pin.LOCAL_WORLD_ALIGNED).vector
-        ax, ay, az, bx, by, bz = acc.tolist()
-        rx, ry, rz = r.tolist()
-        # drift of the point: a + alpha x r + w x (w x r)
-        cx, cy, cz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx  # w x r
-        drift = np.array([ax + (by * rz - bz * ry) + (wy * cz - wz * cy),
-                          ay + (bz * rx - bx * rz) + (wz * cx - wx * cz),
-                          az + (bx * ry - by * rx) + (wx * cy - wy * cx), bx, by, bz])
+        J, drift, _velocity = frame_point_kinematics(model, data, fid, r)
         return J, drift, contact.wrench_map(R), R
 
     def build_reference(self, contacts: list[ActiveContact], tasks: list[Task],
