@@ -73,7 +73,7 @@ def test_the_spec_perturbation_block_builds_the_perturbed_ladder(backend):
     assert np.allclose(offset, [0.0, 0.0, 0.02], atol=1e-9)  # the planner does not know about it
     assert np.allclose(backend.surface_frame("rung_3")[:3, 3], nominal.rung_centre(3))
     drops = [r for r in backend.pending_requests() if isinstance(r, PerturbRequest)]
-    assert [(d.kind, d.mass, d.at_time, d.target_link) for d in drops] == [("drop", 10.0, 12.0, "torso")]
+    assert [(d.kind, d.mass, d.at_time, d.target_link) for d in drops] == [("drop", 10.0, 43.0, "torso")]
 
 
 def test_rails_shift(backend):
