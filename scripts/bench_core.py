@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     n_base = max(50, args.calls // 5)
     highs = _timed(lambda i: feasibility.check_equilibrium(robot, qs[i], stance, highs_cfg, env=env), n_base)
     # the solver alone, on one problem
-    ws = feasibility._workspace(robot)
+    ws = feasibility.workspace(robot)
     cs = ws.compiled(env, stance, cfg)
     pin.computeJointJacobians(robot.model, ws.data, q0)
     g = pin.computeGeneralizedGravity(robot.model, ws.data, q0).copy()

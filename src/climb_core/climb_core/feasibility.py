@@ -353,7 +353,9 @@ class _Workspace:
 _WORKSPACES: dict[int, _Workspace] = {}
 
 
-def _workspace(robot: Any) -> _Workspace:
+def workspace(robot: Any) -> _Workspace:
+    """The robot's feasibility workspace (its own pin.Data, compiled-stance cache), one per robot
+    model; public for the planner, which builds its force rows on the same compiled stances."""
     ws = _WORKSPACES.get(id(robot))
     if ws is None or ws.robot is not robot:
         ws = _Workspace(robot)
@@ -605,7 +607,7 @@ def check(robot: Any, env: Any, q: np.ndarray, stance: Stance, settings: Feasibi
     """
     cfg = settings or load_config()
     p = cfg.check
-    ws = _workspace(robot)
+    ws = workspace(robot)
     q = np.asarray(q, dtype=float)
     if q.shape != (ws.model.nq,) or not np.isfinite(q).all():
         raise SpecError("q", f"must be {ws.model.nq} finite numbers, got shape {q.shape}")

@@ -98,7 +98,11 @@ class IKResult:
 
 
 @dataclass
-class _Task:
+class ContactTask:
+    """One hold as an IK task: put the limb's contact surface on ``target`` along the selected
+    error rows (a grasp leaves its roll about the rung free). Public: the planner's
+    physics-constrained IK (planner_node.pcik) builds on these."""
+
     limb: str
     frame_id: int
     T_frame_surface: pin.SE3
@@ -106,8 +110,10 @@ class _Task:
     rows: np.ndarray  # (k, 6) selection of the 6D error rows (linear, angular), in the surface frame
 
 
-def _tasks(robot: Any, env: Any, q_seed: np.ndarray, targets: Stance | Mapping[str, Any],
-           hold_params: holds_mod.HoldParams | None) -> list[_Task]:
+def contact_tasks(robot: Any, env: Any, q_seed: np.ndarray, targets: Stance | Mapping[str, Any],
+                  hold_params: holds_mod.HoldParams | None) -> list[ContactTask]:
+    """The :class:`ContactTask` of every hold of ``targets`` (a Stance, or limb -> hold / hold spec),
+    hold targets resolved from ``q_seed`` (which grasp axis direction, which sole side)."""
     data = robot.model.createData()
     pin.framesForwardKinematics(robot.model, data, q_seed)
     items: list[tuple[str, Any]] = (list((h.limb, h) for h in targets.holds) if isinstance(targets, Stance)
@@ -138,12 +144,15 @@ def _tasks(robot: Any, env: Any, q_seed: np.ndarray, targets: Stance | Mapping[s
             rows[:3, :3] = np.eye(3)
             rows[3, 3:] = b1
             rows[4, 3:] = b2
-        out.append(_Task(limb, fid, pin.SE3(T_fs), pin.SE3(np.asarray(ht.T_world_surface)), rows))
+        out.append(ContactTask(limb, fid, pin.SE3(T_fs), pin.SE3(np.asarray(ht.T_world_surface)), rows))
     return out
 
 
-def _errors(model: pin.Model, data: pin.Data, tasks: list[_Task], w_ang: float, with_jacobian: bool
-            ) -> tuple[np.ndarray, np.ndarray | None, list[tuple[float, float]]]:
+def task_errors(model: pin.Model, data: pin.Data, tasks: list[ContactTask], w_ang: float, with_jacobian: bool
+                ) -> tuple[np.ndarray, np.ndarray | None, list[tuple[float, float]]]:
+    """Stacked task errors (angular rows weighted by ``w_ang``), their Jacobian when asked, and per
+    task (position error [m], angle error [rad]); ``data`` must hold the configuration's joint
+    placements (and Jacobians for ``with_jacobian``)."""
     errs, jacs, per = [], [], []
     for t in tasks:
         pin.updateFramePlacement(model, data, t.frame_id)
@@ -186,7 +195,7 @@ def solve(robot: Any, env: Any, q_seed: np.ndarray, targets: Stance | Mapping[st
         com_target = np.asarray(com_target, dtype=float).reshape(-1)
         if com_target.shape not in ((2,), (3,)) or not np.isfinite(com_target).all():
             raise SpecError("ik.com_target", "must be 2 (x, y) or 3 (x, y, z) finite numbers [m]")
-    tasks = _tasks(robot, env, q_seed, targets, hold_params)
+    tasks = contact_tasks(robot, env, q_seed, targets, hold_params)
     rng = np.random.default_rng(params.rng_seed)
     lo = model.lowerPositionLimit[7:] + params.joint_limit_margin
     hi = model.upperPositionLimit[7:] - params.joint_limit_margin
@@ -213,7 +222,7 @@ def solve(robot: Any, env: Any, q_seed: np.ndarray, targets: Stance | Mapping[st
     return best
 
 
-def _attempt(robot: Any, q: np.ndarray, tasks: list[_Task], posture: np.ndarray, com_target: np.ndarray | None,
+def _attempt(robot: Any, q: np.ndarray, tasks: list[ContactTask], posture: np.ndarray, com_target: np.ndarray | None,
              params: IKParams, lo: np.ndarray, hi: np.ndarray) -> IKResult:
     import daqp
 
@@ -227,7 +236,7 @@ def _attempt(robot: Any, q: np.ndarray, tasks: list[_Task], posture: np.ndarray,
     com_err = 0.0
     for it in range(1, 2 * params.max_iterations + 1):
         pin.computeJointJacobians(model, data, q)
-        e, J, per = _errors(model, data, tasks, w_ang, with_jacobian=True)
+        e, J, per = task_errors(model, data, tasks, w_ang, with_jacobian=True)
         pos = max((p for p, _ in per), default=0.0)
         ang = max((a for _, a in per), default=0.0)
         if com_target is not None:
@@ -267,7 +276,7 @@ def _attempt(robot: Any, q: np.ndarray, tasks: list[_Task], posture: np.ndarray,
             dq = np.clip(-np.linalg.solve(H, f), lower, upper)
         q = pin.integrate(model, q, np.asarray(dq))
     pin.computeJointJacobians(model, data, q)
-    _, _, per = _errors(model, data, tasks, w_ang, with_jacobian=False)
+    _, _, per = task_errors(model, data, tasks, w_ang, with_jacobian=False)
     pos = max((p for p, _ in per), default=0.0)
     ang = max((a for _, a in per), default=0.0)
     if com_target is not None:
@@ -276,7 +285,7 @@ def _attempt(robot: Any, q: np.ndarray, tasks: list[_Task], posture: np.ndarray,
     return _result(q, ok, per, tasks, w_ang, it, com_err)
 
 
-def _result(q: np.ndarray, ok: bool, per: list[tuple[float, float]], tasks: list[_Task], w_ang: float,
+def _result(q: np.ndarray, ok: bool, per: list[tuple[float, float]], tasks: list[ContactTask], w_ang: float,
             iterations: int, com_error: float = 0.0) -> IKResult:
     pos = max((p for p, _ in per), default=0.0)
     ang = max((a for _, a in per), default=0.0)
@@ -289,9 +298,9 @@ def contact_residual(robot: Any, env: Any, q: np.ndarray, targets: Stance | Mapp
                      params: IKParams | None = None) -> tuple[float, float]:
     """(worst position error [m], worst angle error [rad]) of the contact tasks at q."""
     params = params or load_ik_params()
-    tasks = _tasks(robot, env, q, targets, None)
+    tasks = contact_tasks(robot, env, q, targets, None)
     data = robot.model.createData()
     pin.forwardKinematics(robot.model, data, q)
-    _, _, per = _errors(robot.model, data, tasks, params.orientation_weight, with_jacobian=False)
+    _, _, per = task_errors(robot.model, data, tasks, params.orientation_weight, with_jacobian=False)
     return max((p for p, _ in per), default=0.0), max((a for _, a in per), default=0.0)
 

@@ -188,7 +188,7 @@ class ContactProjector:
         self.ctx = ctx
         self.model = ctx.robot.model
         self.data = self.model.createData()
-        self.tasks = core_ik._tasks(ctx.robot, ctx.env, q_seed, stance, ctx.hold_params) if stance.holds else []
+        self.tasks = core_ik.contact_tasks(ctx.robot, ctx.env, q_seed, stance, ctx.hold_params) if stance.holds else []
         self.w_ang = ctx.ik_params.orientation_weight
         self.tol_p = ctx.ik_params.position_tolerance
         self.tol_a = ctx.ik_params.angle_tolerance
@@ -198,7 +198,7 @@ class ContactProjector:
 
     def errors(self, q: np.ndarray) -> tuple[float, float]:
         pin.computeJointJacobians(self.model, self.data, q)
-        _, _, per = core_ik._errors(self.model, self.data, self.tasks, self.w_ang, with_jacobian=False)
+        _, _, per = core_ik.task_errors(self.model, self.data, self.tasks, self.w_ang, with_jacobian=False)
         return max((a for a, _ in per), default=0.0), max((b for _, b in per), default=0.0)
 
     def __call__(self, q: np.ndarray) -> np.ndarray | None:
@@ -208,7 +208,7 @@ class ContactProjector:
             return q
         for _ in range(self.max_iterations):
             pin.computeJointJacobians(self.model, self.data, q)
-            e, J, per = core_ik._errors(self.model, self.data, self.tasks, self.w_ang, with_jacobian=True)
+            e, J, per = core_ik.task_errors(self.model, self.data, self.tasks, self.w_ang, with_jacobian=True)
             pos = max((a for a, _ in per), default=0.0)
             ang = max((b for _, b in per), default=0.0)
             if pos <= self.tol_p and ang <= self.tol_a:

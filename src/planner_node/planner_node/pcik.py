@@ -134,7 +134,7 @@ class _ContactRows:
                 continue
             # an explicit pose wins (a regular contact may pin the free grasp roll with one)
             self.fixed_targets[c.limb] = np.asarray(c.pose, dtype=float) if c.pose is not None else c.hold
-        self.tasks = core_ik._tasks(robot, env, q, self.fixed_targets, hold_params) if self.fixed_targets else []
+        self.tasks = core_ik.contact_tasks(robot, env, q, self.fixed_targets, hold_params) if self.fixed_targets else []
         self.floating = [c for c in self.contacts if c.type == FLOATING]
 
     def _floating_tasks(self, data: pin.Data) -> tuple[list, list[tuple[ContactSpec, int, np.ndarray]]]:
@@ -167,7 +167,7 @@ class _ContactRows:
                                                               position=T_ws[:3, 3], yaw=yaw, params=self.hold_params)
                 free_pos = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # in-plane (surface frame x, y)
                 free_rot = np.array([[0.0, 0.0, 1.0]])  # heading about the normal
-            task = core_ik._Task(c.limb, fid, pin.SE3(np.asarray(rs.T_frame_surface)), pin.SE3(T_t),
+            task = core_ik.ContactTask(c.limb, fid, pin.SE3(np.asarray(rs.T_frame_surface)), pin.SE3(T_t),
                                  _rows_for_free(free_pos, free_rot))
             tasks.append(task)
             if c.preferred_position is not None:
@@ -177,7 +177,7 @@ class _ContactRows:
     def evaluate(self, data: pin.Data, w_ang: float) -> tuple[np.ndarray, np.ndarray, list, list]:
         ftasks, pulls = self._floating_tasks(data) if self.floating else ([], [])
         tasks = self.tasks + ftasks
-        e, J, per = core_ik._errors(self.robot.model, data, tasks, w_ang, with_jacobian=True)
+        e, J, per = core_ik.task_errors(self.robot.model, data, tasks, w_ang, with_jacobian=True)
         if J is None:
             J = np.zeros((0, self.robot.model.nv))
         return e, J, per, pulls
@@ -343,7 +343,7 @@ def solve(robot: Any, env: Any, q_seed: np.ndarray, contacts: Sequence[ContactSp
     regular = Stance(tuple(c.hold for c in contacts if c.type == REGULAR), name="pcik")
     use_forces = physics
     if use_forces:
-        ws = feasibility._workspace(robot)
+        ws = feasibility.workspace(robot)
         cs = ws.compiled(env, regular, cfg)
         nf = cs.n_forces
         f = np.zeros(nf)
