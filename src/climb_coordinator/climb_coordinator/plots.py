@@ -92,12 +92,7 @@ def plot_climb(result, path: str | pathlib.Path, n_joints: int = 4) -> pathlib.P
     s = result.summary
     fig.suptitle(f"{s['robot']} on {s['ladder']}: {s['rungs_requested']}-step climb, {s.get('mode', '')} mode, "
                  f"rungs reached {s['rungs_reached']}, {'success' if s['success'] else 'FAILED'}")
-    fig.tight_layout()
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def film_strip(frames: list, path: str | pathlib.Path) -> pathlib.Path:
@@ -110,6 +105,11 @@ def film_strip(frames: list, path: str | pathlib.Path) -> pathlib.Path:
         ax.imshow(image)
         ax.set_title(f"t = {time_s:.1f} s", fontsize=9)
         ax.axis("off")
+    return _save(plt, fig, path)
+
+
+def _save(plt, fig, path: str | pathlib.Path) -> pathlib.Path:
+    """Lay out, write (PNG, 90 dpi, parent folders created) and close the figure."""
     fig.tight_layout()
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -196,6 +196,9 @@ class _CompiledStance:
 
 
 def _grip_directions() -> np.ndarray:
+    """13 unit directions (3 axes, 6 face and 4 body diagonals of a cube): |d . F| <= G along each
+    bounds the grasp force norm by G (at most 13 % above G in between). Shared with the
+    controller's QP (controller_node.constraints)."""
     dirs = [np.eye(3)[i] for i in range(3)]
     for i, j in ((0, 1), (0, 2), (1, 2)):
         for s in (1.0, -1.0):
@@ -211,7 +214,11 @@ def _grip_directions() -> np.ndarray:
 GRIP_DIRECTIONS = _grip_directions()  # (13, 3) unit vectors; each row bounds +-d . F
 
 
-def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def tangent_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(t1, t2): the tangent axes of a contact normal that orient every friction pyramid, the
+    planner's here and the controller's generators (controller_node.constraints), so both use
+    the same pyramid."""
+    n = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
     helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     t1 = np.cross(n, helper)
     t1 /= np.linalg.norm(t1)
@@ -270,7 +277,7 @@ def _compile(robot: Any, env: Any, stance: Stance, cfg: FeasibilityConfig) -> _C
             n = cp.normal
             if not np.isfinite(n).all() or abs(np.linalg.norm(n) - 1.0) > 1e-6:
                 raise SpecError(f"stance.{hold.limb}.points[{i}].normal", "must be a unit vector")
-            t1, t2 = _tangents(n)
+            t1, t2 = tangent_basis(n)
             col = o + 3 * i
             for j in range(m):
                 ang = 2.0 * math.pi * j / m

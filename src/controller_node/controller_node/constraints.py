@@ -21,6 +21,7 @@ import numpy as np
 import pinocchio as pin
 
 from climb_core.contact import Hold
+from climb_core.feasibility import GRIP_DIRECTIONS, tangent_basis  # noqa: F401  (re-exported: the QP's grip rows)
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -48,14 +49,6 @@ def skew_stack(vectors: np.ndarray) -> np.ndarray:
     return out
 
 
-def tangent_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    n = normal / np.linalg.norm(normal)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    t1 = np.cross(n, helper)
-    t1 /= np.linalg.norm(t1)
-    return t1, np.cross(n, t1)
-
-
 def friction_generators(normal: np.ndarray, mu: float, count: int = 4) -> np.ndarray:
     """(3, count) unit edges of the pyramid inscribed in the cone |f_t| <= mu f_n around ``normal``.
 
@@ -63,7 +56,7 @@ def friction_generators(normal: np.ndarray, mu: float, count: int = 4) -> np.nda
     start 45 deg off ``t1`` and repeat every 360/count deg. With 4 edges the faces are normal to
     ``t1``, ``t2`` (|f.t1|, |f.t2| <= mu cos 45 deg f_n): the planner's pyramid
     (climb_core.feasibility), so a planned stance is inside the controller's cones. With a
-    multiple of 4 (8: the default) the edges include those and the ones on the tangents: the cone
+    multiple of 4 (8, say) the edges include those and the ones on the tangents: the cone
     contains the planner's pyramid and forces along a single tangent up to mu f_n.
     """
     n = normal / np.linalg.norm(normal)
@@ -180,23 +173,6 @@ class ActiveContact:
         return 0.0, upper
 
 
-def _grip_directions() -> np.ndarray:
-    """13 unit directions (axes, face diagonals, 4 body diagonals): |d . f| <= F for each bounds
-    the grasp force norm by F along them (at most 13 % above F in between), as in
-    climb_core.feasibility."""
-    dirs = [np.eye(3)[i] for i in range(3)]
-    for i, j in ((0, 1), (0, 2), (1, 2)):
-        for sign in (1.0, -1.0):
-            d = np.zeros(3)
-            d[i], d[j] = 1.0, sign
-            dirs.append(d / np.sqrt(2.0))
-    for sy in (1.0, -1.0):
-        for sz in (1.0, -1.0):
-            dirs.append(np.array([1.0, sy, sz]) / np.sqrt(3.0))
-    return np.array(dirs)
-
-
-GRIP_DIRECTIONS = _grip_directions()  # (13, 3)
 
 
 def contact_from_hold(hold: Hold, frame_id: int, T_world_frame: pin.SE3, T_frame_surface: np.ndarray,

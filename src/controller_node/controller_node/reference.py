@@ -42,6 +42,8 @@ class PathReference:
         self.duration = max(float(times[-1]), min_duration)  # [s]
         # path-axis times rescaled onto [0, 1]
         self._u = times / times[-1] if times[-1] > 0 else np.linspace(0.0, 1.0, len(path))
+        # chords between consecutive way-points (tangent space of the first): sampled every tick
+        self._chords = np.array([pin.difference(model, a, b) for a, b in zip(path[:-1], path[1:])]).reshape(-1, model.nv)
         self._tangents = self._catmull_rom_tangents()
 
     def _catmull_rom_tangents(self) -> np.ndarray:
@@ -68,7 +70,7 @@ class PathReference:
         a2, a3 = a * a, a * a * a
         h10, h01, h11 = a3 - 2.0 * a2 + a, -2.0 * a3 + 3.0 * a2, a3 - a2
         d10, d01, d11 = 3.0 * a2 - 4.0 * a + 1.0, -6.0 * a2 + 6.0 * a, 3.0 * a2 - 2.0 * a
-        chord = pin.difference(self.model, self.path[k], self.path[k + 1])
+        chord = self._chords[k]
         m0, m1 = self._tangents[k], self._tangents[k + 1]
         local = h01 * chord + span * (h10 * m0 + h11 * m1)
         d_local_du = (d01 * chord) / span + d10 * m0 + d11 * m1
