@@ -83,6 +83,13 @@ def run_local(tasks, workers: int, progress: Progress) -> list[dict]:
 
 
 def run_ray(tasks, address: str | None, progress: Progress) -> list[dict]:
+    import os
+
+    address = address or os.environ.get("RAY_ADDRESS") or None
+    if not address:
+        # a local instance: every Ray process binds and advertises 127.0.0.1 only (Ray's single-host
+        # mode; otherwise its gRPC servers listen on all interfaces and the agent on the host's IP)
+        os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"
     try:
         import ray
     except ImportError:
@@ -92,8 +99,12 @@ def run_ray(tasks, address: str | None, progress: Progress) -> list[dict]:
                                    "--backend ray, or use the default local backend") from None
     from planner_node.sweep import run_task
 
-    ray.init(address=address or None, ignore_reinit_error=True, log_to_driver=False,
-             runtime_env={"env_vars": {"CLIMB_ROOT": str(ROOT)}})
+    options = dict(ignore_reinit_error=True, log_to_driver=False,
+                   runtime_env={"env_vars": {"CLIMB_ROOT": str(ROOT)}})
+    if address:  # an existing cluster: its own network settings apply
+        ray.init(address=address, **options)
+    else:  # a local instance for this run: loopback only, no dashboard, stopped at exit
+        ray.init(_node_ip_address="127.0.0.1", include_dashboard=False, **options)
     remote = ray.remote(run_task)
     pending = [remote.remote(t) for t in tasks]
     rows = []
