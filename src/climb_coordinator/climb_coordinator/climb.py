@@ -14,6 +14,11 @@
 4. Record: a decimated rosbag2 (MCAP) of the run's topics, sampled arrays for the plots.
 5. Judge from the simulator only: feet on rungs from the contact points (surface carrying the
    foot's normal force), friction ratios of the unilateral contacts, falls.
+
+With ``descend=True`` the plan is the climb followed by its reverse
+(``planner_node.descend.up_and_down``): the robot climbs ``rungs`` rungs, then climbs back down
+until both feet stand on the ground again (hands still on the rung they mounted); the judge then
+also requires the feet to have been on rung ``rungs`` when the descent began.
 """
 from __future__ import annotations
 
@@ -47,6 +52,7 @@ class ClimbRequest:
     plan_timeout_s: float | None = None
     controller_overrides: dict = field(default_factory=dict)
     max_transitions: int | None = None  # execute only the plan's first k transitions (None: all)
+    descend: bool = False  # climb `rungs` rungs, then climb back down to the ground
 
 
 @dataclass
@@ -106,9 +112,11 @@ def validate(req: ClimbRequest) -> None:
 
 def plan(req: ClimbRequest, robot, env, library, settings=None):
     from planner_node.climb_planner import plan_climb
+    from planner_node.descend import up_and_down
 
-    return plan_climb(robot, env, req.rungs, library=library, settings=settings, seed=req.seed,
-                      timeout_s=req.plan_timeout_s)
+    planner = up_and_down if req.descend else plan_climb
+    return planner(robot, env, req.rungs, library=library, settings=settings, seed=req.seed,
+                   timeout_s=req.plan_timeout_s)
 
 
 def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
@@ -130,7 +138,8 @@ def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
     psettings = apply_planner_overrides(load_settings(), cs.planner_overrides)
     p = psettings.planning
     library = load_library(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
-    say(f"planning {req.rungs}-step climb of {summary['ladder']} with {req.robot}")
+    say(f"planning {req.rungs}-step climb{' and descent' if req.descend else ''} of {summary['ladder']} "
+        f"with {req.robot}")
     result = plan(req, robot, env, library, psettings)
     summary["plan_time_s"] = round(result.plan_time_s, 3)
     summary["n_stances"] = result.n_stances
@@ -138,6 +147,8 @@ def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
     if not result.success or result.plan is None:
         summary["failure_reason"] = f"plan: {result.failure_constraint}: {result.failure_detail}"
         return ClimbResult(summary, log, result.plan)
+    if req.descend:
+        summary["descent_start_transition"] = int(result.stats["descent_start"])
     whole = clip_plan_to_limits(result.plan, robot, cs.plan_joint_limit_margin)
     if req.max_transitions is not None:
         whole = replace(whole, transitions=list(whole.transitions[:req.max_transitions]))
@@ -200,12 +211,17 @@ def _execute(req, whole, cs, out: ClimbResult, scenario, initial_fixture, params
     surface_mu = {name: float(s.friction) for name, s in backend.env.surfaces.items()}
     tick = [0]
     current = [-1]
+    # descent: the first transition after the climb (the up plan's end) and the feet seen there
+    n_up = summary.get("descent_start_transition") if req.descend else None
+    top_feet: dict = {}
 
     def on_tick(sim_state, output) -> None:
         k = tick[0]
         tick[0] += 1
         index = controller.transition_index
         if index != current[0] and 0 <= index < len(whole.transitions):
+            if index == n_up:
+                top_feet.update(judge.feet_rungs(backend, cs.foot_force_min))
             current[0] = index
             t = whole.transitions[index]
             say(f"t = {sim_state.time:6.2f} s  transition {index + 1}/{len(whole.transitions)}: {t.primitive} "
@@ -275,7 +291,15 @@ def _execute(req, whole, cs, out: ClimbResult, scenario, initial_fixture, params
     if fsm_state != "hold":
         reasons.append(f"controller ended in {fsm_state} at transition {controller.transition_index} "
                        f"of {len(whole.transitions)}")
-    if req.max_transitions is None and reached < req.rungs:
+    if req.descend:
+        summary["top_feet_rungs"] = {f: top_feet.get(f) for f in FEET}
+        top = judge.rungs_reached(top_feet) if top_feet else 0
+        if req.max_transitions is None and top < req.rungs:
+            reasons.append(f"feet on rungs {top_feet or 'never seen'} when the descent began "
+                           f"(need both on rung >= {req.rungs})")
+        if req.max_transitions is None and any(feet[f] != 0 for f in FEET):
+            reasons.append(f"feet on {feet} at the end of the descent (need both on the ground)")
+    elif req.max_transitions is None and reached < req.rungs:
         reasons.append(f"feet on rungs {feet} (need both on rung >= {req.rungs})")
     summary["success"] = not reasons
     summary["failure_reason"] = "; ".join(reasons)
