@@ -33,6 +33,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--start", default=None, help="start stance fixture (default: the library's, standing)")
     ap.add_argument("--out", default=None, help="write the whole-body plan (JSON) to this file")
     ap.add_argument("--verify", action="store_true", help="re-check the plan at 4x the discretisation")
+    ap.add_argument("--descend", action="store_true",
+                    help="plan the climb and then the climb back down (its cycles reversed): feet end on the ground")
     return ap
 
 
@@ -99,9 +101,14 @@ def run(args: argparse.Namespace):
     if args.start:
         stance, q = fixtures.get(args.start, robot, env)
         start = (q, stance)
-    result = plan_climb(robot, env, args.steps, library=library, settings=settings, start=start,
-                        seed=args.seed, timeout_s=args.timeout)
+    planner = plan_climb
+    if args.descend:
+        from planner_node.descend import up_and_down as planner
+    result = planner(robot, env, args.steps, library=library, settings=settings, start=start,
+                     seed=args.seed, timeout_s=args.timeout)
     extra: dict = {"strategy": settings.planning.strategy}
+    if args.descend and result.success:
+        extra["descent_start_transition"] = int(result.stats["descent_start"])
     if args.out and result.plan is not None:
         path = plan_io.save_plan(args.out, result.plan, {
             "ladder": args.ladder, "robot": args.robot, "steps": args.steps, "seed": args.seed,
@@ -112,8 +119,9 @@ def run(args: argparse.Namespace):
 
         q_start = start[0] if start else fixtures.get(library.initial_fixture, robot, env)[1]
         rep = verify_plan(robot, env, result.plan, q_start=q_start, refine=4,
-                          goal_feet_rung=args.steps if result.success and not args.start else None)
-        extra["verified"] = rep.ok
+                          goal_feet_rung=args.steps if result.success and not args.start and not args.descend
+                          else None)
+        extra["verified"] = rep.ok and (not args.descend or rep.goal_feet_rungs == (0, 0))
         extra["verify"] = rep.summary()
     return result, extra
 
