@@ -32,6 +32,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", default="out/climb", help="output directory (bag, plots)")
     ap.add_argument("--seed", type=int, default=None, help="planner random seed (default: config/planner.yaml)")
     ap.add_argument("--no-bag", action="store_true", help="do not record a bag")
+    ap.add_argument("--plan-cycles", type=int, default=None,
+                    help="plan this many cycles at a time; the next ones are planned from the reached state")
     ap.add_argument("--descend", action="store_true",
                     help="after the climb, climb back down to the ground (the reverse of the climbing cycles)")
     ap.add_argument("--snapshots", type=int, default=0, help="film strip frames (DIR/film_strip.png)")
@@ -46,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
 
     req = ClimbRequest(ladder=args.ladder, robot=args.robot, rungs=args.rungs, mode=args.mode,
                        out_dir=args.out, seed=args.seed, bag=not args.no_bag, snapshots=args.snapshots,
-                       descend=args.descend)
+                       descend=args.descend, plan_cycles=args.plan_cycles)
     summary = base_summary(req)
     try:
         result = run_climb(req, on_progress=lambda m: print(m, file=sys.stderr, flush=True))

@@ -53,6 +53,7 @@ class ClimbRequest:
     controller_overrides: dict = field(default_factory=dict)
     max_transitions: int | None = None  # execute only the plan's first k transitions (None: all)
     descend: bool = False  # climb `rungs` rungs, then climb back down to the ground
+    plan_cycles: int | None = None  # plan this many cycles at a time, the next ones from the reached state
 
 
 @dataclass
@@ -108,15 +109,20 @@ def validate(req: ClimbRequest) -> None:
         raise SpecError("snapshots", f"must be >= 0, got {req.snapshots}")
     if req.max_transitions is not None and req.max_transitions < 1:
         raise SpecError("max_transitions", f"must be >= 1 or None, got {req.max_transitions}")
+    if req.plan_cycles is not None:
+        if isinstance(req.plan_cycles, bool) or not isinstance(req.plan_cycles, int) or req.plan_cycles < 1:
+            raise SpecError("plan_cycles", f"must be an integer >= 1 or None, got {req.plan_cycles!r}")
+        if req.descend:
+            raise SpecError("plan_cycles", "replanning during a climb and back down is not supported: use one")
 
 
-def plan(req: ClimbRequest, robot, env, library, settings=None):
+def plan(req: ClimbRequest, robot, env, library, settings=None, steps: int | None = None):
     from planner_node.climb_planner import plan_climb
     from planner_node.descend import up_and_down
 
     planner = up_and_down if req.descend else plan_climb
-    return planner(robot, env, req.rungs, library=library, settings=settings, seed=req.seed,
-                   timeout_s=req.plan_timeout_s)
+    return planner(robot, env, req.rungs if steps is None else steps, library=library, settings=settings,
+                   seed=req.seed, timeout_s=req.plan_timeout_s)
 
 
 def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
@@ -138,9 +144,10 @@ def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
     psettings = apply_planner_overrides(load_settings(), cs.planner_overrides)
     p = psettings.planning
     library = load_library(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
-    say(f"planning {req.rungs}-step climb{' and descent' if req.descend else ''} of {summary['ladder']} "
+    first_steps = req.rungs if req.plan_cycles is None else min(req.plan_cycles, req.rungs)
+    say(f"planning {first_steps}-step climb{' and descent' if req.descend else ''} of {summary['ladder']} "
         f"with {req.robot}")
-    result = plan(req, robot, env, library, psettings)
+    result = plan(req, robot, env, library, psettings, first_steps)
     summary["plan_time_s"] = round(result.plan_time_s, 3)
     summary["n_stances"] = result.n_stances
     log = ClimbLog()
@@ -154,12 +161,40 @@ def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
         whole = replace(whole, transitions=list(whole.transitions[:req.max_transitions]))
     say(f"plan: {len(whole.transitions)} transitions, {plan_duration(whole):.1f} s of motion "
         f"({result.plan_time_s:.1f} s to plan)")
-    return execute(req, whole, cs, summary, scenario, library.initial_fixture, say)
+    replanner = None
+    if first_steps < req.rungs:
+        def replanner(q, stance, cycles_done: int):
+            """The next cycles from the reached state: (plan or None, cycles, record for the summary)."""
+            from planner_node.replan import measured_start
+
+            from climb_core.errors import InfeasibleError
+            from planner_node.climb_planner import plan_climb
+
+            k = min(req.plan_cycles, req.rungs - cycles_done)
+            say(f"replanning {k} more cycle(s) from the reached state")
+            try:
+                q0 = measured_start(robot, env, q, stance, psettings)
+            except InfeasibleError as exc:
+                return None, k, {"failure_reason": f"start: {exc}"}
+            res = plan_climb(robot, env, k, start=(q0, stance), library=library, settings=psettings, seed=req.seed,
+                             timeout_s=req.plan_timeout_s)
+            record = {"cycles": k, "plan_time_s": round(res.plan_time_s, 3),
+                      "start_projection_mm": round(float(np.linalg.norm(q0[:3] - np.asarray(q)[:3])) * 1e3, 2)}
+            if not res.success or res.plan is None:
+                record["failure_reason"] = f"plan: {res.failure_constraint}: {res.failure_detail}"
+                return None, k, record
+            return clip_plan_to_limits(res.plan, robot, cs.plan_joint_limit_margin), k, record
+    return execute(req, whole, cs, summary, scenario, library.initial_fixture, say, replanner=replanner,
+                   cycles_planned=first_steps)
 
 
 def execute(req: ClimbRequest, whole: WholeBodyPlan, cs: ClimbSettings, summary: dict, scenario,
-            initial_fixture: str, say: Callable[[str], None] = lambda m: None) -> ClimbResult:
-    """Run ``whole`` against a fresh PyBullet world from ``initial_fixture`` and judge it."""
+            initial_fixture: str, say: Callable[[str], None] = lambda m: None, replanner=None,
+            cycles_planned: int | None = None) -> ClimbResult:
+    """Run ``whole`` against a fresh PyBullet world from ``initial_fixture`` and judge it.
+    ``replanner(q, stance, cycles_done) -> (plan | None, cycles, record)`` gives the next plan
+    whenever the controller holds at the end of one and fewer than ``req.rungs`` cycles were
+    planned (``cycles_planned`` of them in ``whole``)."""
     from controller_node.params import load_controller_params
     from controller_node.runner import InProcessRunner
     from sim_bridge.pybullet_backend import PyBulletBackend
@@ -173,14 +208,16 @@ def execute(req: ClimbRequest, whole: WholeBodyPlan, cs: ClimbSettings, summary:
     backend = PyBulletBackend()
     out = ClimbResult(summary, ClimbLog(), whole, backend=backend)
     try:
-        _execute(req, whole, cs, out, scenario, initial_fixture, params, backend, say)
+        _execute(req, whole, cs, out, scenario, initial_fixture, params, backend, say, replanner,
+                 req.rungs if cycles_planned is None else cycles_planned)
     except BaseException:
         out.close()
         raise
     return out
 
 
-def _execute(req, whole, cs, out: ClimbResult, scenario, initial_fixture, params, backend, say) -> None:
+def _execute(req, whole, cs, out: ClimbResult, scenario, initial_fixture, params, backend, say, replanner=None,
+             cycles_planned: int = 0) -> None:
     from controller_node.runner import InProcessRunner
 
     summary, log = out.summary, out.log
@@ -211,6 +248,8 @@ def _execute(req, whole, cs, out: ClimbResult, scenario, initial_fixture, params
     surface_mu = {name: float(s.friction) for name, s in backend.env.surfaces.items()}
     tick = [0]
     current = [-1]
+    active = [whole]  # the plan being executed (replanning appends the next ones)
+    done_before = [0]  # transitions of the plans executed before it
     # descent: the first transition after the climb (the up plan's end) and the feet seen there
     n_up = summary.get("descent_start_transition") if req.descend else None
     top_feet: dict = {}
@@ -219,13 +258,14 @@ def _execute(req, whole, cs, out: ClimbResult, scenario, initial_fixture, params
         k = tick[0]
         tick[0] += 1
         index = controller.transition_index
-        if index != current[0] and 0 <= index < len(whole.transitions):
+        plan_now = active[-1]
+        if index != current[0] and 0 <= index < len(plan_now.transitions):
             if index == n_up:
                 top_feet.update(judge.feet_rungs(backend, cs.foot_force_min))
             current[0] = index
-            t = whole.transitions[index]
-            say(f"t = {sim_state.time:6.2f} s  transition {index + 1}/{len(whole.transitions)}: {t.primitive} "
-                f"{t.moving_limb}")
+            t = plan_now.transitions[index]
+            say(f"t = {sim_state.time:6.2f} s  transition {done_before[0] + index + 1}/"
+                f"{done_before[0] + len(plan_now.transitions)}: {t.primitive} {t.moving_limb}")
         log.tick_ms.append(float(output.status.tick_time_ms))
         log.qp_ms.append(float(output.status.qp_solve_time_ms))
         log.max_current_ratio.append(runner.log.max_current_ratio[-1] if runner.log.max_current_ratio else 0.0)
@@ -248,6 +288,27 @@ def _execute(req, whole, cs, out: ClimbResult, scenario, initial_fixture, params
     t0 = time.perf_counter()
     stop = ("hold", "failure", "replan_needed")
     runner.run(duration + cs.extra_time_s, until=lambda o: o.status.fsm_state in stop)
+    replans: list[dict] = []
+    cycles = cycles_planned
+    while (replanner is not None and cycles < req.rungs and controller.fsm.state == "hold"
+           and not runner.sim_state.fell):
+        stance = active[-1].transitions[-1].target_stance  # the stance the controller holds
+        nxt, k, record = replanner(runner.robot_state().q, stance, cycles)
+        record["sim_time_s"] = round(float(runner.sim_state.time), 3)
+        replans.append(record)
+        if nxt is None:
+            break
+        cycles += k
+        done_before[0] += len(active[-1].transitions)
+        active.append(nxt)
+        current[0] = -1
+        controller.set_plan(nxt)
+        # transition_index is -1 until the FSM has picked the new plan's first transition
+        runner.run(plan_duration(nxt) + cs.extra_time_s,
+                   until=lambda o: controller.transition_index >= 0 and o.status.fsm_state in stop)
+    if len(active) > 1:
+        out.plan = replace(whole, transitions=[t for p in active for t in p.transitions])
+        summary["replans"] = replans
     if controller.fsm.state == "hold" and not runner.sim_state.fell:
         runner.run(cs.settle_time_s)
     out.wall_time_s = time.perf_counter() - t0
@@ -273,8 +334,8 @@ def _execute(req, whole, cs, out: ClimbResult, scenario, initial_fixture, params
         "wall_time_s": round(out.wall_time_s, 2),
         "real_time_factor": round(float(state.time) / out.wall_time_s, 3) if out.wall_time_s > 0 else 0.0,
         "fsm_state": fsm_state,
-        "transitions_done": int(max(controller.transition_index, 0)),
-        "n_transitions": len(whole.transitions),
+        "transitions_done": done_before[0] + int(max(controller.transition_index, 0)),
+        "n_transitions": done_before[0] + len(active[-1].transitions),
         "qp_failures": int(controller.qp_failures),
         "feet_rungs": {f: feet[f] for f in FEET},
         "grasps": dict(state.grasps),
@@ -289,8 +350,10 @@ def _execute(req, whole, cs, out: ClimbResult, scenario, initial_fixture, params
     if state.fell:
         reasons.append(f"fell: {state.fall_reason}")
     if fsm_state != "hold":
-        reasons.append(f"controller ended in {fsm_state} at transition {controller.transition_index} "
-                       f"of {len(whole.transitions)}")
+        reasons.append(f"controller ended in {fsm_state} at transition {done_before[0] + controller.transition_index} "
+                       f"of {done_before[0] + len(active[-1].transitions)}")
+    if replans and "failure_reason" in replans[-1]:
+        reasons.append(f"replanning after {cycles} cycle(s): {replans[-1]['failure_reason']}")
     if req.descend:
         summary["top_feet_rungs"] = {f: top_feet.get(f) for f in FEET}
         top = judge.rungs_reached(top_feet) if top_feet else 0
