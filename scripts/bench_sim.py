@@ -2,12 +2,13 @@
 """Benchmark the simulation bridge: physics step, full bridge tick, lock-step ticks per second with a
 trivial controller in-process and over ROS (G1 standing on the default ladder scene, 200 Hz control).
 
-    .venv/bin/python scripts/bench_sim.py [--ticks 1000] [--ros-ticks 1000] [--repeat 3] [--no-ros]
+    .venv/bin/python scripts/bench_sim.py [--ticks 1000] [--ros-ticks 1000] [--repeat 3] [--no-ros] [--no-pin]
 
 Targets (issue 3): >= 2x real time in-process, >= 1x over ROS (two processes). The machine may be
 shared: every measurement is repeated (``--repeat``, interleaved in-process / ROS) and the medians
 over the repeats are reported, with the 1-minute load average around each run. The trivial
-controller (StandingPd, ~0.1 ms per tick) is the same in both modes.
+controller (StandingPd, ~0.1 ms per tick) is the same in both modes. Over ROS the bridge is pinned
+to CPU 0 (its ``cpu_affinity`` parameter) and the controller process to CPU 1, unless --no-pin.
 
 The last line of the output is one JSON object; every key carries its unit: physics_step_p50_ms /
 _p99_ms (stepSimulation, per tick / substeps), bridge_tick_p50_ms / _p99_ms (offer the command +
@@ -112,16 +113,18 @@ def bench_in_process(ticks: int) -> dict:
             "fell": bool(state.fell), "base_height_end_m": height}
 
 
-def bench_ros(ticks: int) -> dict:
+def bench_ros(ticks: int, pin: bool = True) -> dict:
     from climb_core.ros_env import local_dds_env
 
     env = local_dds_env(domain_id=int(os.environ.get("BENCH_ROS_DOMAIN_ID", 60 + os.getpid() % 30)))
     with tempfile.TemporaryDirectory() as tmp:
         out = pathlib.Path(tmp) / "ros.json"
+        pin = pin and len(os.sched_getaffinity(0)) >= 2
         bridge = subprocess.Popen([sys.executable, "-m", "sim_bridge.node", "--ros-args", "-p", f"max_ticks:={ticks}",
-                                   "-p", "execution:=lockstep"], env=env, cwd=ROOT,
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        controller = subprocess.Popen([sys.executable, __file__, "--controller", str(out), str(ticks), str(bridge.pid)],
+                                   "-p", "execution:=lockstep"] + (["-p", "cpu_affinity:=[0]"] if pin else []),
+                                  env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        controller = subprocess.Popen([sys.executable, __file__, "--controller", str(out), str(ticks), str(bridge.pid),
+                                       "1" if pin else "-1"],
                                       env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         try:
             controller.wait(timeout=600)
@@ -142,8 +145,9 @@ def process_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def controller_main(out_path: str, ticks: int, bridge_pid: int) -> int:
-    """The trivial lock-step controller over ROS: answers each joint_states with StandingPd."""
+def controller_main(out_path: str, ticks: int, bridge_pid: int, pin_cpu: int = -1) -> int:
+    """The trivial lock-step controller over ROS: answers each joint_states with StandingPd
+    (pinned to ``pin_cpu`` unless negative)."""
     from climb_core.ros_env import apply_local_dds_env
 
     apply_local_dds_env()
@@ -156,7 +160,7 @@ def controller_main(out_path: str, ticks: int, bridge_pid: int) -> int:
     from sensor_msgs.msg import JointState
 
     from climb_core.robot import load_robot
-    from sim_bridge.node import make_executor, qos
+    from sim_bridge.node import make_executor, pin_process, qos
 
     robot = load_robot("g1")
     controller = StandingPd(robot)
@@ -195,6 +199,8 @@ def controller_main(out_path: str, ticks: int, bridge_pid: int) -> int:
     node.create_subscription(Odometry, "sim/base_truth", on_base, qos("sim/base_truth"))
     executor = make_executor()
     executor.add_node(node)
+    if pin_cpu >= 0:
+        pin_process([pin_cpu])
     deadline = time.monotonic() + 600
     try:
         while len(arrivals) < ticks + 1 and time.monotonic() < deadline:
@@ -222,19 +228,20 @@ def controller_main(out_path: str, ticks: int, bridge_pid: int) -> int:
 
 def main() -> int:
     if len(sys.argv) > 1 and sys.argv[1] == "--controller":
-        return controller_main(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))
+        return controller_main(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5]))
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ticks", type=int, default=1000, help="in-process control ticks per repeat")
     parser.add_argument("--ros-ticks", type=int, default=1000, help="ticks over ROS per repeat")
     parser.add_argument("--repeat", type=int, default=3, help="repeats (medians are reported)")
     parser.add_argument("--no-ros", action="store_true", help="skip the two-process measurement")
+    parser.add_argument("--no-pin", action="store_true", help="over ROS, leave both processes to the scheduler")
     args = parser.parse_args()
     runs: list[dict] = []
     for k in range(max(args.repeat, 1)):
         run = {"load_average_1min_before": os.getloadavg()[0]}
         run.update(bench_in_process(args.ticks))
         if not args.no_ros:
-            run.update(bench_ros(args.ros_ticks))
+            run.update(bench_ros(args.ros_ticks, pin=not args.no_pin))
         run["load_average_1min_after"] = os.getloadavg()[0]
         runs.append(run)
         line = (f"run {k + 1}: physics step p50 {run['physics_step_p50_ms']:.3f} ms, bridge tick p50 "
@@ -245,6 +252,7 @@ def main() -> int:
               flush=True)
     keys = [key for key, value in runs[0].items() if isinstance(value, float)]
     result = {"robot": "g1", "ladder": "default", "control_period_s": CONTROL_PERIOD_S, "physics_dt_s": 0.001,
+              "ros_pinned": not args.no_ros and not args.no_pin and len(os.sched_getaffinity(0)) >= 2,
               "cpu_count": os.cpu_count(), "repeats": len(runs), "statistic": "median over repeats",
               "fell": any(run["fell"] for run in runs)}
     result.update({key: statistics.median(run[key] for run in runs) for key in keys})

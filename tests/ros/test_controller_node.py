@@ -8,6 +8,7 @@ bridge's and the controller's diagnostics.
 from __future__ import annotations
 
 import json
+import os
 import pathlib
 import subprocess
 import sys
@@ -27,15 +28,16 @@ def test_controller_node_runs_a_hand_transfer_in_lockstep_with_the_bridge(tmp_pa
 
     env = local_dds_env()
     out = tmp_path / "observer.json"
+    cpus = sorted(os.sched_getaffinity(0))  # the bench's layout: bridge on one CPU, controller on another
     bridge = subprocess.Popen(
         [sys.executable, "-m", "sim_bridge.node", "--ros-args", "--params-file",
          str(ROOT / "config" / "nodes" / "sim_bridge.yaml"), "-p", f"max_ticks:={TICKS}",
-         "-p", "initial_posture:=ladder_4_contacts", "-p", "execution:=lockstep"],
+         "-p", "initial_posture:=ladder_4_contacts", "-p", "execution:=lockstep", "-p", f"cpu_affinity:=[{cpus[0]}]"],
         env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     controller = subprocess.Popen(
         [sys.executable, "-m", "controller_node.node", "--ros-args", "--params-file",
          str(ROOT / "config" / "nodes" / "controller.yaml"), "-p", "autostart:=false",
-         "-p", "initial_stance:=ladder_4_contacts"],
+         "-p", "initial_stance:=ladder_4_contacts", "-p", f"cpu_affinity:=[{cpus[-1]}]"],
         env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     observer = subprocess.Popen([sys.executable, __file__, str(out)], env=env, cwd=ROOT,
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
@@ -56,6 +58,7 @@ def test_controller_node_runs_a_hand_transfer_in_lockstep_with_the_bridge(tmp_pa
     assert observer.returncode == 0, o_out.decode()[-3000:]
     assert bridge.returncode == 0, b_out.decode()[-3000:]
     assert controller.returncode == 0, c_out.decode()[-3000:]
+    assert f"pinned to CPUs [{cpus[-1]}]" in c_out.decode() and f"pinned to CPUs [{cpus[0]}]" in b_out.decode()
     r = json.loads(out.read_text())
     # lifecycle: nothing commanded before activation
     assert r["lifecycle"] == ["unconfigured", "inactive", "active"]
