@@ -11,6 +11,7 @@ import pytest
 
 from climb_core import collision, fixtures
 from climb_core.contact import FEET
+from climb_core.errors import SpecError
 
 
 @pytest.fixture(scope="module")
@@ -144,3 +145,29 @@ def test_hulls_are_conservative_against_raw_meshes(g1, env, checker):
     mesh_d = np.array([r.min_distance for r in gd.distanceResults])
     assert (hull_d <= mesh_d + 1e-6).all()
     assert np.median(mesh_d - hull_d) < 0.005  # hulls of link meshes stay tight [m]
+
+
+def test_vectorised_bounds_are_bitwise_the_per_pair_bounds_and_below_every_distance(g1, checker):
+    """The culling bounds (one gather per pair) equal the per-pair formulation bit for bit, so the
+    pairs sent to coal, hence every result, are unchanged; and they never exceed a distance."""
+    rng = np.random.default_rng(7)
+    q_ref = g1.q_reference()
+    lo, hi = g1.model.lowerPositionLimit[7:], g1.model.upperPositionLimit[7:]
+    for _ in range(5):
+        q = q_ref.copy()
+        q[7:] = np.clip(q[7:] + rng.normal(0.0, 0.7, len(q) - 7), lo, hi)
+        q[:3] += rng.normal(0.0, [0.3, 0.1, 0.2])
+        full = checker.all_distances(q)  # runs the kinematics at q
+        fast, ref = checker._lower_bounds(), checker._lower_bounds_reference()
+        assert np.array_equal(fast, ref)
+        assert (fast <= full + 1e-9).all()
+
+
+def test_exclusions_are_cached_per_contact_set(g1, checker):
+    contacts = [("left_foot", "ground"), ("right_hand", "rung_5")]
+    first = checker.excluded_pairs(contacts)
+    assert first and checker.excluded_pairs(list(contacts)) == first
+    names = {checker.pair_names[k] for k in first}
+    assert all(b in ("env:ground", "env:rung_5") for _, b in names)
+    with pytest.raises(SpecError, match="collision.limb"):
+        checker.excluded_pairs([("tail", "ground")])

@@ -336,3 +336,24 @@ def test_bad_input_names_the_field(g1, env, cfg, standing):
     with pytest.raises(SpecError) as err:
         fz.check(g1, env, q, list(stance.holds), cfg)
     assert err.value.field == "stance"
+
+
+def test_compiled_stances_are_shared_by_equal_holds_and_configs(g1, env, cfg, standing):
+    """The planner builds new Stance objects from the same holds, and derives equal configs again
+    and again: both hit the compiled-stance cache, and the result is the one of a fresh compile."""
+    stance, q = standing
+    ws = fz.workspace(g1)
+    c1 = fz.with_check(cfg, collision_margin=0.004)
+    c2 = fz.with_check(cfg, collision_margin=0.004)
+    assert c1 is not c2 and c1 == c2
+    cs = ws.compiled(env, stance, c1)
+    again = Stance(tuple(stance.holds), name="other name")
+    assert ws.compiled(env, again, c2) is cs
+    assert ws.compiled(env, stance, fz.with_check(cfg, collision_margin=0.005)) is not cs
+    moved = holds.hold_from_configuration(g1, env, q, "left_foot", "ground")  # equal content, new object
+    assert ws.compiled(env, Stance((moved, stance.holds[1])), c1) is not cs
+    cached = fz.check(g1, env, q, again, c2)
+    fresh_cs = fz._compile(g1, env, again, c2)
+    np.testing.assert_array_equal(fresh_cs.A_static, cs.A_static)
+    assert cached.feasible and cached.violated == []
+    np.testing.assert_array_equal(cached.joint_torques, fz.check(g1, env, q, stance, c1).joint_torques)

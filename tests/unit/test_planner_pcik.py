@@ -156,3 +156,26 @@ def test_contact_spec_validation():
         pcik.ContactSpec("left_hand", pcik.REGULAR)
     with pytest.raises(SpecError):
         pcik.ContactSpec("left_hand", pcik.FLOATING)
+
+
+def test_collision_rows_match_finite_differences_and_repeat_exactly(g1, env, params):
+    """The gradient rows (one Jacobian per joint, shared by the pairs on that joint) predict the
+    distance change of a small step; a repeated solve (borrowed pin.Data) is bit-identical."""
+    stance, q = fixtures.get("ladder_4_contacts", g1, env)
+    chk = feasibility.collision_mod.checker(g1, env, feasibility.load_config().collision)
+    model = g1.model
+    data = model.createData()
+    pin.computeJointJacobians(model, data, q)
+    excl = [(h.limb, h.env_surface) for h in stance.holds]
+    d, G, names = pcik.collision_rows(chk, model, data, q, excl, 0.05)
+    assert len(d) > 0 and G.shape == (len(d), model.nv)
+    rng = np.random.default_rng(1)
+    dq = rng.normal(0.0, 1e-4, model.nv)
+    q2 = pin.integrate(model, q, dq)
+    full = chk.all_distances(q2)
+    moved = np.array([full[chk.pair_index[n]] for n in names])
+    np.testing.assert_allclose(moved - d, G @ dq, atol=2e-6)
+    a = pcik.solve(g1, env, q, stance, params=params)
+    b = pcik.solve(g1, env, q, stance, params=params)
+    np.testing.assert_array_equal(a.q, b.q)
+    assert a.violated == b.violated and a.iterations == b.iterations

@@ -103,6 +103,7 @@ class CollisionChecker:
         for req in self.geometry_data.distanceRequests:
             req.enable_signed_distance = True
         self._limb_geoms = self._limb_geometry_indices(robot)
+        self._excluded_cache: dict[tuple, tuple[int, ...]] = {}
         self._bounding_spheres()
 
     # ---------------------------------------------------------------- construction helpers
@@ -185,17 +186,28 @@ class CollisionChecker:
     def n_pairs(self) -> int:
         return len(self.geometry_model.collisionPairs)
 
+    @property
+    def pair_index(self) -> dict[tuple[str, str], int]:
+        """(robot geometry, other geometry or "env:<surface>") -> pair index (do not modify)."""
+        return self._pair_index
+
     def excluded_pairs(self, contacts: Iterable[tuple[str, str]]) -> list[int]:
         """Pair indices switched off for (limb, env surface) contacts."""
+        key = tuple((limb, surface) for limb, surface in contacts)
+        hit = self._excluded_cache.get(key)
+        if hit is not None:
+            return list(hit)
         index = self._pair_index
         out = []
-        for limb, surface in contacts:
+        for limb, surface in key:
             if limb not in self._limb_geoms:
                 raise SpecError("collision.limb", f"unknown limb {limb!r}")
             for gi in self._limb_geoms[limb]:
                 k = index.get((self.robot_geoms[gi], ENV_PREFIX + surface))
                 if k is not None:
                     out.append(k)
+        if len(self._excluded_cache) < 4096:  # (limb, surface) combinations of one environment
+            self._excluded_cache[key] = tuple(out)
         return out
 
     def distances(self, q: np.ndarray, contacts: Sequence[tuple[str, str]] = (), threshold: float = 0.0
@@ -240,13 +252,14 @@ class CollisionChecker:
         return np.array([r.min_distance for r in gd.distanceResults])
 
     def _compute(self, idx: np.ndarray) -> np.ndarray:
-        gd = self.geometry_data
-        active = np.zeros_like(self._all_active)
-        active[self._pair_a[idx], self._pair_b[idx]] = True
-        gd.setActiveCollisionPairs(self.geometry_model, active)
-        pin.computeDistances(self.geometry_model, gd)
-        results = gd.distanceResults
-        return np.array([results[int(k)].min_distance for k in idx])
+        """Distances of the pairs ``idx`` (placements already updated), one coal query each.
+
+        Each pair keeps its own coal functor (its GJK support-function warm start), so a pair's
+        result depends only on the configurations that pair was computed at before: the set of
+        pairs computed per query is what the culling decides, nothing else."""
+        gm, gd = self.geometry_model, self.geometry_data
+        compute = pin.computeDistance
+        return np.array([compute(gm, gd, k).min_distance for k in idx.tolist()])
 
     def _bounding_spheres(self) -> None:
         """Bounds for culling: a sphere per robot geometry (joint index, centre in the joint frame,
@@ -289,12 +302,39 @@ class CollisionChecker:
         sa, sb = self._pair_a[~is_env], self._pair_b[~is_env]
         self._self_pair_radius = self._sphere_radius[sa] + self._sphere_radius[sb]
         self._pair_index = {pn: k for k, pn in enumerate(self.pair_names)}
+        parent = [go.parentJoint for go in gm.geometryObjects]
+        #: (n_pairs, 2) parent joint index of each pair's two geometries (0: the universe / environment)
+        self.pair_joints: list[tuple[int, int]] = [(int(parent[a]), int(parent[b])) for a, b in
+                                                   zip(self._pair_a.tolist(), self._pair_b.tolist())]
         self._all_active = np.zeros((n, n), dtype=bool)
         self._all_active[self._pair_a, self._pair_b] = True
+        # the joints carrying spheres (their placements are all the bounds need)
+        self._bound_joints = sorted(set(self._sphere_joint.tolist()))
+        slot = {j: s for s, j in enumerate(self._bound_joints)}
+        self._sphere_slot = np.array([slot[j] for j in self._sphere_joint.tolist()], dtype=int)
+        self._self_a, self._self_b = sa, sb
+        self._env_a = self._pair_a[is_env]
+        self._env_radius = self._sphere_radius[self._env_a]
 
     def _lower_bounds(self) -> np.ndarray:
         """Lower bound of every pair's signed distance (FK already done): sphere-sphere for self
         pairs, sphere-oriented-box for environment pairs."""
+        oMi = self.data.oMi
+        T = np.array([oMi[j].homogeneous for j in self._bound_joints])
+        S = self._sphere_slot
+        centres = np.einsum("nij,nj->ni", T.take(S, axis=0)[:, :3, :3], self._sphere_centre) + T[S, :3, 3]
+        lower = np.empty(len(self._pair_a))
+        diff = centres.take(self._self_a, axis=0) - centres.take(self._self_b, axis=0)
+        lower[self._self_pairs] = np.sqrt(np.einsum("ij,ij->i", diff, diff)) - self._self_pair_radius
+        local = np.einsum("nji,nj->ni", self._env_pair_R, centres.take(self._env_a, axis=0) - self._env_pair_p)
+        excess = np.abs(local) - self._env_pair_h
+        pos = np.maximum(excess, 0.0)
+        outside = np.sqrt(np.einsum("ij,ij->i", pos, pos))
+        lower[self._env_pairs] = outside + np.minimum(excess.max(axis=1), 0.0) - self._env_radius
+        return lower
+
+    def _lower_bounds_reference(self) -> np.ndarray:
+        """The per-pair formulation of :meth:`_lower_bounds` (tests: both must agree)."""
         T = np.array([M.homogeneous for M in self.data.oMi])
         J = self._sphere_joint
         centres = np.einsum("nij,nj->ni", T[J, :3, :3], self._sphere_centre) + T[J, :3, 3]

@@ -342,19 +342,39 @@ class _Workspace:
         self.lower = self.model.lowerPositionLimit.copy()
         self.upper = self.model.upperPositionLimit.copy()
         self.stances: OrderedDict[tuple, _CompiledStance] = OrderedDict()
+        self._cfg_by_id: dict[int, tuple[FeasibilityConfig, int]] = {}
+        self._cfg_by_value: dict[FeasibilityConfig, int] = {}
 
     def compiled(self, env: Any, stance: Stance, cfg: FeasibilityConfig) -> _CompiledStance:
-        key = (id(stance), id(env), id(cfg))
+        """The compiled form of ``stance`` (cached). The key is the identity of its holds (frozen
+        dataclasses, shared between the many Stance objects a planner builds from them) and the
+        value of ``cfg`` (callers derive equal configs with ``with_check`` again and again)."""
+        if not isinstance(stance, Stance):
+            raise SpecError("stance", f"must be a climb_core.contact.Stance, got {type(stance).__name__}")
+        cfg_key = self._config_key(cfg)
+        holds = stance.holds
+        key = (tuple(map(id, holds)), id(env), cfg_key)
         hit = self.stances.get(key)
-        if hit is not None and hit.stance is stance and hit.env is env and hit.cfg is cfg:
+        if hit is not None and hit.env is env and all(a is b for a, b in zip(hit.stance.holds, holds)):
             self.stances.move_to_end(key)
             return hit
         c = _compile(self.robot, env, stance, cfg)
-        c.env, c.cfg = env, cfg  # held so that their ids stay unique while cached
+        c.env, c.cfg = env, cfg  # held (with the stance's holds) so that their ids stay unique while cached
         self.stances[key] = c
-        if len(self.stances) > 256:
+        if len(self.stances) > 512:
             self.stances.popitem(last=False)
         return c
+
+    def _config_key(self, cfg: FeasibilityConfig) -> int:
+        """A small integer per distinct config value (equal frozen dataclasses share it)."""
+        hit = self._cfg_by_id.get(id(cfg))
+        if hit is not None and hit[0] is cfg:
+            return hit[1]
+        k = self._cfg_by_value.setdefault(cfg, len(self._cfg_by_value))
+        if len(self._cfg_by_id) > 1024:
+            self._cfg_by_id.clear()
+        self._cfg_by_id[id(cfg)] = (cfg, k)  # the object is held so that its id is not reused
+        return k
 
 
 _WORKSPACES: dict[int, _Workspace] = {}

@@ -13,8 +13,10 @@ The planner extends this (collision avoidance, physics constraints); keep it a p
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import pathlib
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any, Iterator, Mapping
 
@@ -22,7 +24,7 @@ import numpy as np
 import pinocchio as pin
 
 from . import holds as holds_mod
-from .contact import Stance
+from .contact import Hold, Stance
 from .errors import SpecError
 from .params import load_params, param
 
@@ -108,14 +110,41 @@ class ContactTask:
     T_frame_surface: pin.SE3
     target: pin.SE3  # T_world_surface target
     rows: np.ndarray  # (k, 6) selection of the 6D error rows (linear, angular), in the surface frame
+    # derived once (task_errors): action matrix frame -> surface, and the row weights for a w_ang
+    _X_surface_frame: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+    _weights: tuple[float, np.ndarray] | None = field(default=None, init=False, repr=False, compare=False)
+
+
+_DATA_POOL: dict[int, tuple[pin.Model, list[pin.Data]]] = {}
+
+
+@contextlib.contextmanager
+def _scratch_data(model: pin.Model) -> Iterator[pin.Data]:
+    """A pin.Data of ``model`` borrowed from a pool (createData costs ~0.25 ms for G1); every
+    algorithm run on it recomputes what it reads, so a borrowed Data gives what a new one does."""
+    entry = _DATA_POOL.get(id(model))
+    if entry is None or entry[0] is not model:
+        entry = (model, [])
+        _DATA_POOL[id(model)] = entry
+    free = entry[1]
+    data = free.pop() if free else model.createData()
+    try:
+        yield data
+    finally:
+        free.append(data)
 
 
 def contact_tasks(robot: Any, env: Any, q_seed: np.ndarray, targets: Stance | Mapping[str, Any],
                   hold_params: holds_mod.HoldParams | None) -> list[ContactTask]:
     """The :class:`ContactTask` of every hold of ``targets`` (a Stance, or limb -> hold / hold spec),
     hold targets resolved from ``q_seed`` (which grasp axis direction, which sole side)."""
-    data = robot.model.createData()
-    pin.framesForwardKinematics(robot.model, data, q_seed)
+    with _scratch_data(robot.model) as data:
+        pin.framesForwardKinematics(robot.model, data, q_seed)
+        return _contact_tasks(robot, env, data, targets, hold_params)
+
+
+def _contact_tasks(robot: Any, env: Any, data: pin.Data, targets: Stance | Mapping[str, Any],
+                   hold_params: holds_mod.HoldParams | None) -> list[ContactTask]:
     items: list[tuple[str, Any]] = (list((h.limb, h) for h in targets.holds) if isinstance(targets, Stance)
                                     else list(targets.items()))
     out = []
@@ -131,8 +160,10 @@ def contact_tasks(robot: Any, env: Any, q_seed: np.ndarray, targets: Stance | Ma
         else:
             if env is None:
                 raise SpecError("ik.targets", "holds need the environment they are on")
-            seed_R = (data.oMf[fid].homogeneous @ T_fs)[:3, :3]
-            ht = holds_mod.hold_target(robot, env, spec, params=hold_params, R_world_surface_seed=seed_R)
+            ht = _cached_foot_target(robot, env, spec, hold_params)
+            if ht is None:
+                seed_R = (data.oMf[fid].homogeneous @ T_fs)[:3, :3]
+                ht = holds_mod.hold_target(robot, env, spec, params=hold_params, R_world_surface_seed=seed_R)
         rows = np.eye(6)
         if ht.free_axis_in_surface is not None:
             a = np.asarray(ht.free_axis_in_surface, dtype=float)
@@ -148,25 +179,56 @@ def contact_tasks(robot: Any, env: Any, q_seed: np.ndarray, targets: Stance | Ma
     return out
 
 
+_FOOT_TARGETS: OrderedDict[tuple, tuple[Any, Any, Any, holds_mod.HoldTarget | None]] = OrderedDict()
+
+
+def _cached_foot_target(robot: Any, env: Any, hold: Any, hold_params: holds_mod.HoldParams | None
+                        ) -> holds_mod.HoldTarget | None:
+    """hold_target of a foot hold (sole on a tread, a plane or a rung), cached per hold object:
+    it does not depend on the seed configuration. None for a grasp (its axis direction follows the
+    seed) and for anything that is not a climb_core Hold."""
+    if not isinstance(hold, Hold):
+        return None
+    key = (id(hold), id(env), id(robot), hold_params)
+    hit = _FOOT_TARGETS.get(key)
+    if hit is not None and hit[0] is hold and hit[1] is env and hit[2] is robot:
+        _FOOT_TARGETS.move_to_end(key)
+        return hit[3]
+    kind = holds_mod.hold_kind(robot, env, hold)
+    ht = None if kind == "grasp" else holds_mod.hold_target(robot, env, hold, params=hold_params)
+    _FOOT_TARGETS[key] = (hold, env, robot, ht)  # held so that the ids stay unique while cached
+    if len(_FOOT_TARGETS) > 2048:
+        _FOOT_TARGETS.popitem(last=False)
+    return ht
+
+
 def task_errors(model: pin.Model, data: pin.Data, tasks: list[ContactTask], w_ang: float, with_jacobian: bool
                 ) -> tuple[np.ndarray, np.ndarray | None, list[tuple[float, float]]]:
     """Stacked task errors (angular rows weighted by ``w_ang``), their Jacobian when asked, and per
     task (position error [m], angle error [rad]); ``data`` must hold the configuration's joint
     placements (and Jacobians for ``with_jacobian``)."""
     errs, jacs, per = [], [], []
+    norm = np.linalg.norm
     for t in tasks:
         pin.updateFramePlacement(model, data, t.frame_id)
         M = data.oMf[t.frame_id] * t.T_frame_surface
         M_err = t.target.actInv(M)
         e6 = pin.log6(M_err).vector
         sel = t.rows @ e6
-        per.append((float(np.linalg.norm(sel[:3])), float(np.linalg.norm(sel[3:]))))
-        W = np.ones(len(sel))
-        W[3:] = w_ang
+        per.append((float(norm(sel[:3])), float(norm(sel[3:]))))
+        w = t._weights
+        if w is None or w[0] != w_ang:
+            W = np.ones(len(t.rows))
+            W[3:] = w_ang
+            t._weights = w = (w_ang, W)
+        W = w[1]
         errs.append(W * sel)
         if with_jacobian:
+            X = t._X_surface_frame
+            if X is None:
+                X = t._X_surface_frame = t.T_frame_surface.inverse().toActionMatrix()
             J_frame = pin.getFrameJacobian(model, data, t.frame_id, pin.ReferenceFrame.LOCAL)
-            J_surf = t.T_frame_surface.inverse().toActionMatrix() @ J_frame
+            J_surf = X @ J_frame
             jacs.append(W[:, None] * (t.rows @ (pin.Jlog6(M_err) @ J_surf)))
     e = np.concatenate(errs) if errs else np.zeros(0)
     J = np.vstack(jacs) if with_jacobian and jacs else None
@@ -224,10 +286,15 @@ def solve(robot: Any, env: Any, q_seed: np.ndarray, targets: Stance | Mapping[st
 
 def _attempt(robot: Any, q: np.ndarray, tasks: list[ContactTask], posture: np.ndarray, com_target: np.ndarray | None,
              params: IKParams, lo: np.ndarray, hi: np.ndarray) -> IKResult:
+    with _scratch_data(robot.model) as data:
+        return _attempt_on(robot, data, q, tasks, posture, com_target, params, lo, hi)
+
+
+def _attempt_on(robot: Any, data: pin.Data, q: np.ndarray, tasks: list[ContactTask], posture: np.ndarray,
+                com_target: np.ndarray | None, params: IKParams, lo: np.ndarray, hi: np.ndarray) -> IKResult:
     import daqp
 
     model: pin.Model = robot.model
-    data = model.createData()
     nv = model.nv
     w_ang = params.orientation_weight
     history: list[float] = []
@@ -299,8 +366,8 @@ def contact_residual(robot: Any, env: Any, q: np.ndarray, targets: Stance | Mapp
     """(worst position error [m], worst angle error [rad]) of the contact tasks at q."""
     params = params or load_ik_params()
     tasks = contact_tasks(robot, env, q, targets, None)
-    data = robot.model.createData()
-    pin.forwardKinematics(robot.model, data, q)
-    _, _, per = task_errors(robot.model, data, tasks, params.orientation_weight, with_jacobian=False)
+    with _scratch_data(robot.model) as data:
+        pin.forwardKinematics(robot.model, data, q)
+        _, _, per = task_errors(robot.model, data, tasks, params.orientation_weight, with_jacobian=False)
     return max((p for p, _ in per), default=0.0), max((a for _, a in per), default=0.0)
 

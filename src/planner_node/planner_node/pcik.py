@@ -27,9 +27,10 @@ The three contact types of the paper:
 """
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -229,27 +230,34 @@ def collision_rows(chk: collision_mod.CollisionChecker, model: pin.Model, data: 
     rep = chk.distances(q, contacts=exclusions, threshold=activation)
     if not rep.below:
         return np.zeros(0), np.zeros((0, model.nv)), []
-    index = {pn: k for k, pn in enumerate(chk.pair_names)}
-    gm = chk.geometry_model
+    index = chk.pair_index
+    pair_joints = chk.pair_joints
+    results = chk.geometry_data.distanceResults
+    LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+    joint_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # joint -> (linear, angular rows of its Jacobian)
+    origin: dict[int, np.ndarray] = {}  # joint -> its origin [m], world
     dists, grads, names = [], [], []
     for a, b, d in rep.below:
         k = index[(a, b)]
-        res = chk.geometry_data.distanceResults[k]
-        pair = gm.collisionPairs[k]
-        p1, p2 = np.asarray(res.getNearestPoint1()), np.asarray(res.getNearestPoint2())
+        res = results[k]
         n = np.asarray(res.normal, dtype=float)
         nn = np.linalg.norm(n)
         if nn < 1e-12:
             continue
         n = n / nn
         grad = np.zeros(model.nv)
-        for gi, p, sign in ((pair.first, p1, -1.0), (pair.second, p2, 1.0)):
-            j = gm.geometryObjects[gi].parentJoint
+        ja, jb = pair_joints[k]
+        for j, sign, first in ((ja, -1.0, True), (jb, 1.0, False)):
             if j == 0:
                 continue
-            J6 = pin.getJointJacobian(model, data, j, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-            r = p - data.oMi[j].translation
-            Jp = J6[:3] - _skew(r) @ J6[3:]
+            hit = joint_cache.get(j)
+            if hit is None:
+                J6 = pin.getJointJacobian(model, data, j, LWA)
+                hit = joint_cache[j] = (J6[:3], J6[3:])
+                origin[j] = data.oMi[j].translation
+            p = np.asarray(res.getNearestPoint1() if first else res.getNearestPoint2())
+            r = p - origin[j]
+            Jp = hit[0] - _skew(r) @ hit[1]
             grad += sign * (n @ Jp)
         dists.append(float(d))
         grads.append(grad)
@@ -280,7 +288,10 @@ def static_torque_derivative(model: pin.Model, data: pin.Data, q: np.ndarray, fr
             row += 3
             if not np.any(f):
                 continue
-            fext[j] += oMi.actInv(pin.Force(f, np.cross(p, f)))
+            # p x f, written out (np.cross costs more than the rest of the loop body)
+            fx, fy, fz = f
+            px, py, pz = p
+            fext[j] += oMi.actInv(pin.Force(f, np.array([py * fz - pz * fy, pz * fx - px * fz, px * fy - py * fx])))
     return pin.computeStaticTorqueDerivatives(model, data, q, fext)
 
 
@@ -335,7 +346,20 @@ def solve(robot: Any, env: Any, q_seed: np.ndarray, contacts: Sequence[ContactSp
     lo = model.lowerPositionLimit[7:] + params.joint_limit_margin
     hi = model.upperPositionLimit[7:] - params.joint_limit_margin
     q[7:] = np.clip(q[7:], lo, hi)
-    data = model.createData()
+    with _scratch_data(model) as data:
+        return _solve(robot, env, q, contacts, q_target, params, base_cfg, cfg, data, lo, hi, physics, collision,
+                      extra_exclusions, final_check, com_target, self_margin)
+
+
+def _solve(robot: Any, env: Any, q: np.ndarray, contacts: list[ContactSpec], q_target: np.ndarray,
+           params: PCIKParams, base_cfg: feasibility.FeasibilityConfig, cfg: feasibility.FeasibilityConfig,
+           data: pin.Data, lo: np.ndarray, hi: np.ndarray, physics: bool, collision: bool,
+           extra_exclusions: Sequence[tuple[str, str]], final_check: bool, com_target: np.ndarray | None,
+           self_margin: float | None) -> PCIKResult:
+    """The SQP loop of :func:`solve` (arguments validated; ``data`` a scratch pin.Data)."""
+    model: pin.Model = robot.model
+    nv = model.nv
+    na = nv - 6
     rows = _ContactRows(robot, env, contacts, base_cfg.holds, q)
     exclusions = [(c.limb, c.env_surface) for c in contacts if c.env_surface] + list(extra_exclusions)
     chk = collision_mod.checker(robot, env, base_cfg.collision) if (collision and env is not None) else None
@@ -422,6 +446,7 @@ def solve(robot: Any, env: Any, q_seed: np.ndarray, contacts: Sequence[ContactSp
         H[o_f:o_sc] = params.force_regularization
         H[o_sc:o_seq] = params.contact_slack_weight
         soft = soft_mask(rows, m_c)
+        hard_contacts = ~soft
         if soft.any():
             H[o_sc:o_seq][soft] = params.cue_weight
         H[o_seq:o_st] = params.equilibrium_slack_weight
@@ -499,7 +524,7 @@ def solve(robot: Any, env: Any, q_seed: np.ndarray, contacts: Sequence[ContactSp
         upper = np.concatenate([ub, np.concatenate(up_rows) if up_rows else np.zeros(0)])
         sense = np.concatenate([np.zeros(n, dtype=np.int32)] + sense_rows)
         hard = np.zeros(n, dtype=bool)
-        hard[o_sc:o_seq] = ~soft_mask(rows, m_c)
+        hard[o_sc:o_seq] = hard_contacts
         lb_h, ub_h = lower.copy(), upper.copy()
         lb_h[:n][hard], ub_h[:n][hard] = 0.0, 0.0
         x = _solve_qp(Hfull, c, A, ub_h, lb_h, sense)
@@ -539,10 +564,10 @@ def _final(robot: Any, env: Any, q: np.ndarray, contacts: list[ContactSpec], row
            self_margin: float | None = None) -> PCIKResult:
     """Evaluate q: contact errors, then the core check (the IK's margins when ``margins``)."""
     model = robot.model
-    data = model.createData()
-    pin.computeJointJacobians(model, data, q)
-    pin.updateFramePlacements(model, data)
-    _, _, per, _ = rows.evaluate(data, w_ang)
+    with _scratch_data(model) as data:
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        _, _, per, _ = rows.evaluate(data, w_ang)
     pos = max((p for p, _ in per), default=0.0)
     ang = max((a for _, a in per), default=0.0)
     violated: list[str] = []
@@ -602,6 +627,25 @@ def check_with_exclusions(robot: Any, env: Any, q: np.ndarray, stance: Stance,
         res.details["collisions"] = bad or rep.below
         res.feasible = False
     return res
+
+
+_DATA_POOL: dict[int, tuple[pin.Model, list[pin.Data]]] = {}
+
+
+@contextlib.contextmanager
+def _scratch_data(model: pin.Model) -> Iterator[pin.Data]:
+    """A pin.Data of ``model`` borrowed from a pool (createData costs ~0.25 ms for G1); every
+    algorithm run on it recomputes what it reads, so a borrowed Data gives what a new one does."""
+    entry = _DATA_POOL.get(id(model))
+    if entry is None or entry[0] is not model:
+        entry = (model, [])
+        _DATA_POOL[id(model)] = entry
+    free = entry[1]
+    data = free.pop() if free else model.createData()
+    try:
+        yield data
+    finally:
+        free.append(data)
 
 
 def _solve_qp(H: np.ndarray, c: np.ndarray, A: np.ndarray, upper: np.ndarray, lower: np.ndarray,
