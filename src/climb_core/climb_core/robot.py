@@ -844,14 +844,28 @@ class RobotModel:
         return np.array(self.model.effortLimit[6:], dtype=float)
 
     def T_world_surface(self, limb: str, q: np.ndarray, data: "pin.Data | None" = None) -> np.ndarray:
-        """4x4 pose of the limb's contact surface frame in the world at configuration q."""
+        """4x4 pose of the limb's contact surface frame in the world at configuration q (without
+        ``data``: a scratch pin.Data of this thread, createData costing ~0.3 ms for G1)."""
         import pinocchio as pin
 
-        data = data if data is not None else self.model.createData()
+        if data is None:
+            data = self._scratch_data()
         surface = self.config.limbs[limb].surface
         fid = self.frame_id(surface.frame)
         pin.framesForwardKinematics(self.model, data, q)
         return data.oMf[fid].homogeneous @ surface.T_frame_surface
+
+    def _scratch_data(self) -> "pin.Data":
+        """A pin.Data of this robot's model owned by the calling thread (reused between calls)."""
+        import threading
+
+        local = self.__dict__.get("_scratch_local")
+        if local is None:
+            local = self.__dict__.setdefault("_scratch_local", threading.local())
+        data = getattr(local, "data", None)
+        if data is None:
+            data = local.data = self.model.createData()
+        return data
 
     def sim_urdf_path(self) -> pathlib.Path:
         """PyBullet-ready URDF of this robot (finger joints kept), cached under .cache/robots/.
