@@ -544,12 +544,18 @@ class CollisionAvoidance:
         self._centre_in_joint = np.array([item[4] for item in items], dtype=float).reshape(-1, 3)
         self._placement_R = np.array([item[3].rotation for item in items], dtype=float).reshape(-1, 3, 3)
         self._placement_t = np.array([item[3].translation for item in items], dtype=float).reshape(-1, 3)
+        # homogeneous forms: geometry placements in their joints (I, 4, 4), sphere centres (I, 4, 1)
+        self._placement_h = np.array([item[3].homogeneous for item in items], dtype=float).reshape(-1, 4, 4)
+        self._centre_h = np.concatenate([self._centre_in_joint, np.ones((len(items), 1))], axis=1)[:, :, None]
         self._env_items_arr = np.array(self._env_items, dtype=int)
         caps = self._env_capsules
         self._cap_a = caps[None, :, :3]
         self._cap_ab = (caps[:, 3:6] - caps[:, :3])[None]
         self._cap_denom = np.maximum((self._cap_ab * self._cap_ab).sum(-1), 1e-12)
         self._cap_r = caps[None, :, 6]
+        self._cap_a_c = np.ascontiguousarray(caps[:, :3])  # (K, 3)
+        self._cap_ab_c = np.ascontiguousarray(caps[:, 3:6] - caps[:, :3])
+        self._cap_denom_c = np.maximum((self._cap_ab_c * self._cap_ab_c).sum(-1), 1e-12)  # (K,)
         n_env = len(self._env)
         self._n_env = n_env
         self._env_radii = self._radii[self._env_items_arr][:, None] if len(self._env_items_arr) else np.zeros((0, 1))
@@ -579,8 +585,9 @@ class CollisionAvoidance:
         self._pair_b = np.concatenate([np.full(n_pairs, n_items), self._self_b]).astype(int)
         self._pair_names = [name for row in self._env_names for name in row] + names
         self._pair_disabled = np.zeros(n_pairs + len(sa), dtype=bool)
-        #: coherence budget [m] per pair: last exact distance - d_i - motion since (nan: unknown)
-        self._budget = np.full(n_pairs + len(sa), np.nan)
+        self._pair_enabled = np.ones(n_pairs + len(sa), dtype=bool)
+        #: coherence budget [m] per pair: last exact distance - d_i - motion since (-inf: unknown)
+        self._budget = np.full(n_pairs + len(sa), -np.inf)
         self._motion = np.zeros(n_items + 1)  # [m] per item this tick; the sentinel stays 0
         self._prev_centres: np.ndarray | None = None
         self._prev_R: np.ndarray | None = None
@@ -596,11 +603,17 @@ class CollisionAvoidance:
         parts = []
         env_idx = self._env_items_arr
         if self._n_env and len(env_idx):
-            c = centres[env_idx][:, None, :]
-            a, ab = self._cap_a, self._cap_ab
-            t = np.clip(((c - a) * ab).sum(-1) / self._cap_denom, 0.0, 1.0)
-            diff = (a + t[..., None] * ab) - c
-            gap = np.sqrt((diff * diff).sum(-1)) - self._cap_r - self._env_radii
+            # sphere centre c to the capsule axis a + t ab, t in [0, 1]; contiguous operands and
+            # einsum reductions (broadcast views and .sum(-1) on a last axis of 3 are slow paths)
+            cap_a, cap_ab = self._cap_a_c, self._cap_ab_c
+            ca = centres[env_idx][:, None, :] - cap_a  # (L, K, 3)
+            t = np.einsum("lkj,kj->lk", ca, cap_ab)
+            t /= self._cap_denom_c
+            np.clip(t, 0.0, 1.0, out=t)
+            diff = ca - t[:, :, None] * cap_ab  # centre -> closest axis point (sign irrelevant)
+            gap = np.sqrt(np.einsum("lkj,lkj->lk", diff, diff))
+            gap -= self._cap_r
+            gap -= self._env_radii
             parts.append(np.flatnonzero(gap < cutoff + self.slack))  # pid = li * n_env + k
         if len(self._self_a):
             dcs = centres[self._self_a] - centres[self._self_b]
@@ -610,8 +623,11 @@ class CollisionAvoidance:
         self._bp_centres = centres
 
     def _set_disabled(self, disabled) -> None:
+        if disabled is self._disabled_key:  # the controller passes the same frozenset while nothing changed
+            return
         key = disabled if isinstance(disabled, frozenset) else frozenset(disabled)
         if key == self._disabled_key:
+            self._disabled_key = key
             return
         self._disabled_key = key
         for li, (link, surfaces) in enumerate(self._env_pair_links):
@@ -619,28 +635,7 @@ class CollisionAvoidance:
                 self._pair_disabled[li * self._n_env + k] = (link, surface) in key
         for s, pair in enumerate(self._self_links):
             self._pair_disabled[self._n_env_pairs + s] = pair in key
-
-    def _exact(self, g1, R1, t1, g2, tf2, functor_key):
-        """coal distance (cached functor per pair): d [m], witness points, unit normal from the
-        obstacle to the body (lists of floats, world)."""
-        functor = self._functors.get(functor_key)
-        if functor is None:
-            functor = self._functors[functor_key] = self._coal.ComputeDistance(g1, g2)
-        result = self._result
-        result.clear()
-        tf1 = self._tf1  # one reused coal transform (constructing one costs ~3 us)
-        tf1.setRotation(R1)
-        tf1.setTranslation(t1)
-        d = functor(tf1, tf2, self._request, result)
-        p1 = result.getNearestPoint1().tolist()
-        p2 = result.getNearestPoint2().tolist()
-        dx, dy, dz = p1[0] - p2[0], p1[1] - p2[1], p1[2] - p2[2]
-        norm = math.sqrt(dx * dx + dy * dy + dz * dz)
-        if d > 1e-6 and norm > 1e-9:
-            n = [dx / norm, dy / norm, dz / norm]
-        else:
-            n = (-np.asarray(result.normal, dtype=float)).tolist()  # coal normal points from o1 to o2
-        return float(d), p1, p2, n
+        np.logical_not(self._pair_disabled, out=self._pair_enabled)
 
     def compute(self, model: pin.Model, data: pin.Data, v: np.ndarray, dt: float,
                 disabled: set[tuple[str, str]] | frozenset = frozenset()) -> "DamperBatch":
@@ -669,28 +664,27 @@ class CollisionAvoidance:
             self._item_masks = np.array([_support_mask(model, j) for j in self._item_joint.tolist()])
         self._set_disabled(disabled)
         oMi = data.oMi
-        H = np.array([oMi[j].homogeneous for j in self._joints])  # (J, 4, 4)
-        slot = self._item_slot
-        R_items = H[slot, :3, :3]  # (I, 3, 3)
-        t_items = H[slot, :3, 3]
-        centres = np.matmul(R_items, self._centre_in_joint[:, :, None])[:, :, 0]
-        centres += t_items
+        H = np.array([oMi[j].homogeneous for j in self._joints])  # (J, 4, 4) joint placements
+        H_items = H[self._item_slot]  # (I, 4, 4): each item's joint
+        R_items = H_items[:, :3, :3]
+        centres = np.matmul(H_items, self._centre_h)[:, :3, 0]  # sphere centres (I, 3), world
         if self._prev_centres is not None:  # spend the coherence budgets
             dc = centres - self._prev_centres
-            dR = (R_items - self._prev_R).reshape(-1, 9)
+            dR = R_items - self._prev_R
             motion = self._motion
-            motion[:-1] = np.sqrt((dc * dc).sum(-1)) + np.sqrt((dR * dR).sum(-1)) * self._reach
+            motion[:-1] = (np.sqrt(np.einsum("ij,ij->i", dc, dc))
+                           + np.sqrt(np.einsum("ijk,ijk->i", dR, dR)) * self._reach)
             self._budget -= motion[self._pair_a] + motion[self._pair_b]
         self._prev_centres, self._prev_R = centres, R_items
         if self._bp_centres is not None:
             dc = centres - self._bp_centres
-            rerun = float((dc * dc).sum(-1).max()) > self.slack * self.slack
+            rerun = float(np.einsum("ij,ij->i", dc, dc).max()) > self.slack * self.slack
         else:
             rerun = True
         if rerun:
             self._broadphase(centres)
         cand = self._candidates
-        todo = cand[~((self._budget[cand] >= 0.0) | self._pair_disabled[cand])]
+        todo = cand[(self._budget[cand] < 0.0) & self._pair_enabled[cand]]
         names: list[str] = []
         distances: list[float] = []
         normals: list[list[float]] = []
@@ -701,26 +695,39 @@ class CollisionAvoidance:
         if len(todo):
             n_env_pairs = self._n_env_pairs
             it = self._pair_a[todo]
-            R_it = R_items[it]
-            R_geom = np.matmul(R_it, self._placement_R[it])
-            t_geom = np.matmul(R_it, self._placement_t[it][:, :, None])[:, :, 0]
-            t_geom += t_items[it]
+            G = np.matmul(H_items[it], self._placement_h[it])  # (k, 4, 4) geometry poses, world
+            R_geom = G[:, :3, :3]
+            t_geom = G[:, :3, 3]
             measured = np.empty(len(todo))
             items, env, pair_names, di = self._items, self._env, self._pair_names, self.di
+            n_env, functors, request, result, tf1 = self._n_env, self._functors, self._request, self._result, self._tf1
             for n_i, (pid, item) in enumerate(zip(todo.tolist(), it.tolist())):
                 if pid < n_env_pairs:
-                    _, env_geom, env_tf = env[pid % self._n_env]
-                    d, p_body, _p_obstacle, n = self._exact(items[item][1], R_geom[n_i], t_geom[n_i],
-                                                            env_geom, env_tf, pid)
+                    # coal distance: a cached functor per pair, one reused transform (constructing
+                    # one costs ~3 us); the normal points from the obstacle to the body
+                    functor = functors.get(pid)
+                    if functor is None:
+                        functor = functors[pid] = self._coal.ComputeDistance(items[item][1], env[pid % n_env][1])
+                    result.clear()
+                    tf1.setRotation(R_geom[n_i])
+                    tf1.setTranslation(t_geom[n_i])
+                    d = float(functor(tf1, env[pid % n_env][2], request, result))
                     measured[n_i] = d
                     if d < di:
+                        p1 = result.getNearestPoint1().tolist()
+                        p2 = result.getNearestPoint2().tolist()
+                        dx, dy, dz = p1[0] - p2[0], p1[1] - p2[1], p1[2] - p2[2]
+                        norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+                        if d > 1e-6 and norm > 1e-9:
+                            n = [dx / norm, dy / norm, dz / norm]
+                        else:
+                            n = (-np.asarray(result.normal, dtype=float)).tolist()  # coal: from o1 to o2
                         term_row.append(len(names))
                         term_item.append(item)
-                        term_point.append(p_body)
+                        term_point.append(p1 + n)  # witness point on the body, then the normal
                         term_sign.append(1.0)
                         names.append(pair_names[pid])
                         distances.append(d)
-                        normals.append(n)
                 else:
                     ib = int(self._pair_b[pid])
                     _, gb, jb, pb, _, _ = items[ib]
@@ -731,13 +738,13 @@ class CollisionAvoidance:
                     measured[n_i] = d
                     if d < di:
                         row = len(names)
+                        n = n.tolist()
                         term_row += [row, row]
                         term_item += [item, ib]
-                        term_point += [p_a.tolist(), p_b.tolist()]
+                        term_point += [p_a.tolist() + n, p_b.tolist() + n]
                         term_sign += [1.0, -1.0]
                         names.append(pair_names[pid])
                         distances.append(d)
-                        normals.append(n.tolist())
             measured -= di
             self._budget[todo] = measured
         k = len(names)
@@ -749,11 +756,9 @@ class CollisionAvoidance:
         #   row   = [n, p x n]' J_j            (d_dot = row . v, the n' J_p of eq. 7)
         #   drift = n' a_p = [n, p x n]' A + n . (w x v_p),  v_p = v + w x p  (n' Jdot_p v)
         items_t = np.array(term_item)
-        P = np.array(term_point)  # (T, 3) witness points, world
-        N = np.array(normals)
-        if len(items_t) != k:
-            rows_t = np.array(term_row)
-            N = N[rows_t]
+        PN = np.array(term_point)  # (T, 6): witness points [m] and unit normals, world
+        P = PN[:, :3]
+        N = PN[:, 3:]
         W = np.empty((len(items_t), 6))
         W[:, :3] = N
         W[:, 3:] = np.einsum("ijk,tj,tk->ti", _LEVI_CIVITA, P, N)  # p x n
@@ -766,11 +771,12 @@ class CollisionAvoidance:
         A = Mv @ data.dJ.T  # (T, 6)
         w_t = V[:, 3:]
         v_p = V[:, :3] + np.einsum("ijk,tj,tk->ti", _LEVI_CIVITA, w_t, P)
-        n_drift_t = (W * A).sum(1) + np.einsum("ijk,ti,tj,tk->t", _LEVI_CIVITA, N, w_t, v_p)
+        n_drift_t = np.einsum("ti,ti->t", W, A) + np.einsum("ijk,ti,tj,tk->t", _LEVI_CIVITA, N, w_t, v_p)
         if len(items_t) == k:  # no self pair: one term per row, in row order
             rows = J_terms
             n_drift = n_drift_t
         else:
+            rows_t = np.array(term_row)
             sign = np.array(term_sign)
             rows = np.zeros((k, model.nv))
             n_drift = np.zeros(k)

@@ -11,6 +11,8 @@ offset between the robot's actual state when the path starts and the path's firs
 """
 from __future__ import annotations
 
+import bisect
+
 import numpy as np
 import pinocchio as pin
 
@@ -42,6 +44,7 @@ class PathReference:
         self.duration = max(float(times[-1]), min_duration)  # [s]
         # path-axis times rescaled onto [0, 1]
         self._u = times / times[-1] if times[-1] > 0 else np.linspace(0.0, 1.0, len(path))
+        self._u_list = self._u.tolist()  # bisect on floats: np.searchsorted costs ~3 us a call
         # chords between consecutive way-points (tangent space of the first): sampled every tick
         self._chords = np.array([pin.difference(model, a, b) for a, b in zip(path[:-1], path[1:])]).reshape(-1, model.nv)
         self._tangents = self._catmull_rom_tangents()
@@ -59,10 +62,11 @@ class PathReference:
 
     def _segment(self, s: float) -> tuple[int, float, float]:
         """(way-point index k, position a in [0, 1] on segment k, segment length in u)."""
-        k = int(np.searchsorted(self._u, s, side="right")) - 1
-        k = min(max(k, 0), len(self.path) - 2)
-        span = float(self._u[k + 1] - self._u[k])
-        a = 0.0 if span <= 0 else min(max((s - self._u[k]) / span, 0.0), 1.0)
+        u = self._u_list
+        k = bisect.bisect_right(u, s) - 1  # == np.searchsorted(u, s, side="right") - 1
+        k = min(max(k, 0), len(u) - 2)
+        span = u[k + 1] - u[k]
+        a = 0.0 if span <= 0 else min(max((s - u[k]) / span, 0.0), 1.0)
         return k, a, span
 
     def _local(self, k: int, a: float, span: float) -> tuple[np.ndarray, np.ndarray]:
@@ -92,7 +96,7 @@ class PathReference:
 
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """q_ref (nq,) and v_ref (nv,) at t [s]; v = dq/du * du/dt, the Hermite derivative mapped
-        to the tangent space at q_ref (``pin.dIntegrate``)."""
+        to the tangent space at q_ref (``pin.dIntegrate``, applied by ``dIntegrateTransport``)."""
         s, sdot = self.progress(t)
         if len(self.path) == 1:
             return self.path[0].copy(), np.zeros(self.model.nv)
@@ -103,13 +107,14 @@ class PathReference:
         q = pin.integrate(self.model, self.path[k], local)
         if sdot <= 0.0:
             return q, np.zeros(self.model.nv)
-        J = pin.dIntegrate(self.model, self.path[k], local, pin.ArgumentPosition.ARG1)
-        return q, J @ (d_local * sdot)
+        # dIntegrate(ARG1) @ (dq/du du/dt) without forming the (nv, nv) Jacobian
+        return q, pin.dIntegrateTransport(self.model, self.path[k], local, d_local * sdot,
+                                          pin.ArgumentPosition.ARG1)
 
     @property
     def last_segment_start(self) -> float:
         """Progress s at which the last way-point segment (the approach) begins."""
-        return float(self._u[-2]) if len(self._u) >= 2 else 0.0
+        return self._u_list[-2] if len(self._u_list) >= 2 else 0.0
 
     @property
     def start(self) -> np.ndarray:

@@ -132,6 +132,9 @@ class BaseOrientationTask(Task):
         self.omega_in_base = np.zeros(3)
         self._J = np.zeros((3, nv))
         self._J[:, 3:6] = np.eye(3)
+        self._zero = np.zeros(3)
+        self._zero.flags.writeable = False
+        self._weights_of: tuple[float, np.ndarray] | None = None  # (weight, its (3,) row weights)
 
     def set_target(self, R_world_base: np.ndarray, omega_in_base=None) -> None:
         self.R_world_base = np.asarray(R_world_base, float)
@@ -142,7 +145,11 @@ class BaseOrientationTask(Task):
         error = pin.log3(R.T @ self.R_world_base)
         self.last_error = _norm(error)
         a_des = _damping(self.stiffness) * (self.omega_in_base - view.v[3:6]) + self.stiffness * error
-        return TaskRows(self._J, np.zeros(3), a_des, np.full(3, self.weight), slice(3, 6))
+        if self._weights_of is None or self._weights_of[0] != self.weight:
+            weights = np.full(3, self.weight)
+            weights.flags.writeable = False
+            self._weights_of = (self.weight, weights)
+        return TaskRows(self._J, self._zero, a_des, self._weights_of[1], slice(3, 6))
 
 
 class FrameTask(Task):

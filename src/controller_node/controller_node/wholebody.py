@@ -231,10 +231,11 @@ class WholeBodyQP:
         """Pinocchio terms for this state: M, h, joint Jacobians and their time variation, CoM
         (+ Jacobian, drift), frame placements, drifts."""
         model, data = self.model, self.data
-        pin.computeAllTerms(model, data, q, v)  # M (full symmetric), nle, J, Jcom, com
+        # M (full symmetric), nle, J, Jcom, com; its forward pass also leaves data.a = the drift
+        # accelerations (qdd = 0), bit for bit what forwardKinematics(q, v, 0) would compute
+        pin.computeAllTerms(model, data, q, v)
         # dJ (world): drifts of the contact reference points and damper witness points (~4 us)
         pin.computeJointJacobiansTimeVariation(model, data, q, v)
-        pin.forwardKinematics(model, data, q, v, self._zero_v)  # data.a = drift accelerations
         pin.centerOfMass(model, data, pin.ACCELERATION, False)  # com, vcom, acom (drift)
         pin.updateFramePlacements(model, data)
         self.view.q = q
