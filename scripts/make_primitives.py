@@ -145,7 +145,7 @@ def build(args: argparse.Namespace) -> int:
     settings = replace(settings, "planning", self_collision_margin=max(settings.planning.self_collision_margin,
                                                                         min(self_margin,
                                                                             settings.planning.collision_margin)))
-    cfg = feasibility.load_config()
+    cfg = design_hold_config(feasibility.load_config(), design)
     plan_cfg = AdaptContext(robot, env, _empty_library(robot, design), settings, cfg).check_cfg
     H = design["holds"]
     side = {"left_foot": 1.0, "right_foot": -1.0, "left_hand": 1.0, "right_hand": -1.0}
@@ -164,8 +164,10 @@ def build(args: argparse.Namespace) -> int:
 
     def pinned(hold, q_ref: np.ndarray):
         """A kept grasp keeps the roll it has at q_ref (the IK would otherwise let it drift about the
-        rung from primitive to primitive); other holds: None (their hold pose)."""
-        if not hold.bilateral:
+        rung from primitive to primitive); other holds: None (their hold pose). design.yaml
+        ``pin_grasp_roll: false`` leaves the roll free (a robot whose wrists are its binding joints
+        needs the roll the equilibrium asks for)."""
+        if not hold.bilateral or not design.get("pin_grasp_roll", True):
             return None
         return np.array(robot.T_world_surface(hold.limb, q_ref))
 
@@ -460,15 +462,33 @@ def build(args: argparse.Namespace) -> int:
         from planner_node.primitives import load_library
 
         if args.reference:  # a variant: the planner as it runs (every library, this one nearest)
-            res = plan_climb(robot, env, args.check_steps, settings=load_settings())
+            res = plan_climb(robot, env, args.check_steps, settings=load_settings(), feasibility_cfg=cfg)
         else:
             lib2 = load_library(args.robot, args.strategy, nq=robot.model.nq, path=path)
-            res = plan_climb(robot, env, args.check_steps, library=lib2, settings=load_settings())
+            res = plan_climb(robot, env, args.check_steps, library=lib2, settings=load_settings(), feasibility_cfg=cfg)
         print(f"check: {args.check_steps}-step climb of {env.name}: success={res.success} "
               f"time={res.plan_time_s:.2f} s {res.failure_constraint} {res.failure_detail}")
         if not res.success:
             return 1
     return 0
+
+
+def design_hold_config(cfg, design: dict):
+    """The feasibility config with the design's hold placement: ``holds.foot_on_rung_offset`` [m]
+    (sole centre this far behind the rung, i.e. the ball of the foot on the rung) replaces the
+    config/feasibility.yaml value for the IK targets. The check itself accepts any sole placement
+    with the rung line under the sole polygon, so the frozen check still judges the result."""
+    import dataclasses
+
+    from climb_core.errors import SpecError
+
+    off = (design.get("holds") or {}).get("foot_on_rung_offset")
+    if off is None:
+        return cfg
+    off = float(off)
+    if not -0.1 <= off <= 0.1:
+        raise SpecError("design.holds.foot_on_rung_offset", "must be within [-0.1, 0.1] m")
+    return dataclasses.replace(cfg, holds=dataclasses.replace(cfg.holds, foot_on_rung_offset=off))
 
 
 def _adapt_with(ctx, name: str, q, stance):

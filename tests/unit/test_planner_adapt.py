@@ -142,3 +142,120 @@ def test_library_round_trip_and_validation(g1, env):
         parse_primitive("bad", {"kind": "limb", "limb": "left_foot", "target": {"surface": "rung", "rule": "up"}})
     with pytest.raises(SpecError):
         load_library("g1", "sideways")
+
+
+def rel(T_a, T_b):
+    """T_a^-1 T_b (4x4)."""
+    return np.linalg.inv(T_a) @ T_b
+
+
+def test_limb_cues_anchor_the_back_off_to_the_start_hold_and_the_approach_to_the_target(g1, env, ctx):
+    prim = ctx.library.primitives["place_right_hand"]
+    cues = A.limb_cues(ctx, prim)
+    w = cues.weights
+    assert len(w) == len(prim.waypoints) and w[0] == 0.0 and w[-1] == 1.0 and np.all(np.diff(w) >= 0.0)
+    P_s, P_e = cues.poses[0], cues.poses[-1]
+    # the back-off (design: 4 then 10 cm along the palm normal, from the start grasp) is start-anchored ...
+    back = [i for i, P in enumerate(cues.poses) if np.linalg.norm(rel(P_s, P)[:3, 3] - [0, 0, -0.1]) < 0.015]
+    assert back and all(w[i] == 0.0 for i in range(max(back) + 1))
+    # ... the approach (10 then 3 cm off the target rung along its palm normal) target-anchored
+    near = [i for i, P in enumerate(cues.poses) if np.linalg.norm(rel(P_e, P)[:3, 3] - [0, 0, -0.03]) < 0.015]
+    assert near and all(w[i] == 1.0 for i in range(min(near), len(w)))
+    # on its own reference ladder, from its own end points, a primitive is re-targeted onto itself
+    q_s, q_e = to_world(env, prim.waypoints[0]), to_world(env, prim.waypoints[-1])
+    T_ladder = np.asarray(env.T_world_ladder)
+    for T, P in zip(A.retarget_poses(ctx, prim, q_s, q_e), cues.poses):
+        assert np.allclose(T, T_ladder @ P, atol=1e-6)
+
+
+def test_retargeted_way_points_keep_their_pose_relative_to_the_actual_holds(g1, env, ctx):
+    prim = ctx.library.primitives["place_right_hand"]
+    cues = A.limb_cues(ctx, prim)
+    q_s, q_e = to_world(env, prim.waypoints[0]), to_world(env, prim.waypoints[-1])
+    assert g1.T_world_surface("right_hand", q_s)[2, 3] == pytest.approx(env.surfaces["rung_4"].top_z - 0.02, abs=0.01)
+    # the hand rolled about its start rung (as the IK may leave a grasp) and the target 5 cm higher
+    i_roll = g1.model.joints[g1.model.getJointId("right_wrist_roll_joint")].idx_q
+    q_s[i_roll] += 0.3
+    q_e = q_e.copy()
+    q_e[2] += 0.05
+    T_s, T_e = g1.T_world_surface("right_hand", q_s), g1.T_world_surface("right_hand", q_e)
+    # without the start hold: the back-off goes along the actual (rolled) palm normal
+    T_new = A.retarget_poses(ctx, prim, q_s, q_e)
+    for T, P, w in zip(T_new, cues.poses, cues.weights):
+        if w == 0.0:
+            assert np.allclose(rel(T_s, T), rel(cues.poses[0], P), atol=1e-6)
+        if w == 1.0:  # the approach: relative to where the hand actually lands
+            assert np.allclose(rel(T_e, T), rel(cues.poses[-1], P), atol=1e-6)
+    assert A.pose_deviation(T_new[0], T_s) == pytest.approx((0.0, 0.0), abs=1e-6)
+    # from the grasp it leaves: the back-off counts from that grasp's nominal pose, as designed
+    hold = holds.make_hold(g1, env, "right_hand", "rung_4", -prim.seed_s)
+    N_s = A.nominal_grasp_pose(ctx, hold, q_s)
+    assert A.pose_deviation(N_s, T_s)[1] > 0.2  # the roll the hand has to undo
+    T_new = A.retarget_poses(ctx, prim, q_s, q_e, hold)
+    back = [i for i, w in enumerate(cues.weights) if w == 0.0 and i > 0]
+    assert back
+    for i in back:
+        assert np.allclose(rel(N_s, T_new[i]), rel(cues.poses[0], cues.poses[i]), atol=2e-3)
+
+
+def test_projection_with_a_limb_cue_places_the_free_limb_and_keeps_the_contacts(g1, env, ctx):
+    st4, q4 = fixtures.get("ladder_4_contacts", g1, env)
+    kept = st4.without("right_hand")
+    T = g1.T_world_surface("right_hand", q4)
+    cue = T.copy()
+    cue[:3, 3] -= 0.06 * T[:3, 2]  # 6 cm back along the palm normal, off the rung
+    proj = A.ContactProjector(ctx, kept, q4)
+    q = proj(q4, cue=("right_hand", cue))
+    assert q is not None
+    dp, da = A.pose_deviation(g1.T_world_surface("right_hand", q), cue)
+    assert dp < 1e-3 and da < 1e-2
+    pos, ang = proj.errors(q)
+    assert pos < 1e-3 and ang < 1e-2
+    # an unreachable cue (2 m away) is refused, not half-done
+    far = cue.copy()
+    far[:3, 3] += [0.0, 0.0, 2.0]
+    assert proj(q4, cue=("right_hand", far)) is None
+
+
+def test_a_landing_grasp_rolled_about_its_rung_is_projected_again_with_its_nominal_roll(g1, env, ctx):
+    st4, q4 = fixtures.get("ladder_4_contacts", g1, env)
+    hold = st4.hold("right_hand")
+    nominal = A.nominal_grasp_pose(ctx, hold, q4)
+    assert A.grasp_pins(ctx, q4, st4, "right_foot") == {} and A.grasp_pins(ctx, q4, st4, "") == {}
+    assert np.allclose(A.grasp_pins(ctx, q4, st4, "right_hand")["right_hand"], nominal)
+    # this fixture holds the rung with the right palm rolled ~1 rad from the nominal grasp (the IK leaves
+    # the roll free): as the end of a right-hand placement it is projected again, the roll pinned
+    q_bar = q4.copy()
+    free = A.project(ctx, q_bar, st4, np.random.default_rng(0))
+    assert free.q is not None
+    assert A.pose_deviation(g1.T_world_surface("right_hand", free.q), nominal)[1] > ctx.settings.projection.grasp_roll_tolerance
+    out = A.end_configuration(ctx, q_bar, q4, st4, "right_hand", (), np.random.default_rng(0))
+    assert out.q is not None
+    assert A.pose_deviation(g1.T_world_surface("right_hand", out.q), nominal)[1] < 0.02
+    assert ctx.check(out.q, st4).feasible
+    # a contact plan's own end configuration is taken as projected
+    kept = A.end_configuration(ctx, q_bar, q4, st4, "right_hand", (), np.random.default_rng(0), fallbacks=False)
+    assert np.allclose(kept.q, free.q)
+
+
+def test_foot_cues_in_the_ladder_frame_are_anchored_to_the_rung_left_then_the_rung_reached(g1, env, ctx):
+    prim = ctx.library.primitives["place_left_foot"]
+    cues = A.limb_cues(ctx, prim)
+    P_s, P_e = cues.poses[0], cues.poses[-1]
+    w = cues.weights
+    # design: 15 cm back and 10 cm up from the start hold (ladder frame), then 14 cm back / 6 cm up from the target
+    i_back = int(np.argmin([np.linalg.norm(P[:3, 3] - P_s[:3, 3] - [-0.15, 0.0, 0.10]) for P in cues.poses]))
+    i_over = int(np.argmin([np.linalg.norm(P[:3, 3] - P_e[:3, 3] - [-0.14, 0.0, 0.06]) for P in cues.poses]))
+    assert np.linalg.norm(cues.poses[i_back][:3, 3] - P_s[:3, 3] - [-0.15, 0.0, 0.10]) < 0.03
+    assert 0 < i_back < i_over < len(w) - 1
+    assert np.all(w[:i_back + 1] == 0.0) and np.all(w[i_over:] > 0.99) and 0.0 < w[(i_back + i_over) // 2] < 1.0
+    # the next rung, one rung spacing further along the ladder: the approach moves with the target rung,
+    # the back-off stays with the rung the foot leaves
+    q_s, q_e = to_world(env, prim.waypoints[0]), to_world(env, prim.waypoints[-1])
+    step = env.surfaces["rung_2"].position - env.surfaces["rung_1"].position
+    q_e2 = q_e.copy()
+    q_e2[:3] += step
+    T_new = A.retarget_poses(ctx, prim, q_s, q_e2)
+    T_ladder = np.asarray(env.T_world_ladder)
+    assert np.allclose(T_new[i_back], T_ladder @ cues.poses[i_back], atol=1e-6)
+    assert np.allclose(T_new[i_over][:3, 3], (T_ladder @ cues.poses[i_over])[:3, 3] + step, atol=1e-3)

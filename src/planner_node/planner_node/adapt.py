@@ -7,9 +7,14 @@ Adapt-Primitive(Q̄, q_s, σ_s):
    primitive try the neighbouring rungs);
 2. compute q_e ∈ F(σ_e) by projecting the primitive's end configuration (:func:`project`,
    Algorithm 1: Newton-Raphson contact projection from increasingly perturbed seeds, then a
-   collision retraction / physics repair with the physics-constrained IK);
+   collision retraction / physics repair with the physics-constrained IK); a landing grasp rolled
+   about its rung is projected again at its nominal roll, and a designed end posture that does
+   not fit the ladder at all is replaced by the current one (:func:`end_configuration`);
 3. linearly transform the primitive's way-points onto (q_s, q_e)
-   (:func:`planner_node.interpolation.linear_transform`);
+   (:func:`planner_node.interpolation.linear_transform`); a way-point whose moving hand or foot strays from
+   its design cue (e.g. the back-off along the palm normal, relative to the actual grasps) is
+   moved back onto it (:func:`retarget_poses`): the joint-space offsets alone bend the hand's
+   path on ladders far from the reference;
 4. project every way-point onto the transition stance σ_t = σ_e minus the moving limb and retract
    the colliding ones (milestones), then interpolate between milestones while keeping the contact
    constraints (recursive projected bisection);
@@ -87,6 +92,8 @@ class AdaptStats:
     pcik_successes: int = 0
     checks: int = 0
     interpolation_projections: int = 0
+    retargeted: int = 0  # way-points moved onto their design cue's pose
+    cue_retractions: int = 0  # way-points retracted while keeping the moving limb near its cue
     time_ik_s: float = 0.0
     time_pcik_s: float = 0.0
     time_check_s: float = 0.0
@@ -119,6 +126,7 @@ class AdaptContext:
         self.ik_params = dataclasses.replace(base_ik, restarts=0)
         self.stats = AdaptStats()
         self._targets: dict[int, tuple[Hold, np.ndarray]] = {}
+        self._cues: dict[int, tuple[Primitive, Any]] = {}  # limb_cues per primitive
 
     # ---------------------------------------------------------------- checks
     def check(self, q: np.ndarray, stance: Stance, exclusions: Sequence[tuple[str, str]] = ()
@@ -201,14 +209,20 @@ class ContactProjector:
         _, _, per = core_ik.task_errors(self.model, self.data, self.tasks, self.w_ang, with_jacobian=False)
         return max((a for a, _ in per), default=0.0), max((b for _, b in per), default=0.0)
 
-    def __call__(self, q: np.ndarray) -> np.ndarray | None:
+    def __call__(self, q: np.ndarray, cue: tuple[str, np.ndarray] | None = None) -> np.ndarray | None:
+        """q moved onto the stance's contacts; with ``cue`` = (limb, 4x4 T_world_surface) the free
+        limb is put at that pose too (a re-targeted way-point), None when that is not reachable."""
         self.ctx.stats.interpolation_projections += 1
         q = np.asarray(q, dtype=float).copy()
-        if not self.tasks:
+        tasks = self.tasks
+        if cue is not None:
+            tasks = tasks + core_ik.contact_tasks(self.ctx.robot, None, q, {cue[0]: np.asarray(cue[1], dtype=float)},
+                                                  None)
+        if not tasks:
             return q
         for _ in range(self.max_iterations):
             pin.computeJointJacobians(self.model, self.data, q)
-            e, J, per = core_ik.task_errors(self.model, self.data, self.tasks, self.w_ang, with_jacobian=True)
+            e, J, per = core_ik.task_errors(self.model, self.data, tasks, self.w_ang, with_jacobian=True)
             pos = max((a for a, _ in per), default=0.0)
             ang = max((b for _, b in per), default=0.0)
             if pos <= self.tol_p and ang <= self.tol_a:
@@ -217,7 +231,9 @@ class ContactProjector:
             dq = -J.T @ np.linalg.solve(JJt, e)
             q = pin.integrate(self.model, q, dq)
             q[7:] = np.clip(q[7:], self.lo, self.hi)
-        pos, ang = self.errors(q)
+        pin.computeJointJacobians(self.model, self.data, q)
+        _, _, per = core_ik.task_errors(self.model, self.data, tasks, self.w_ang, with_jacobian=False)
+        pos, ang = max((a for a, _ in per), default=0.0), max((b for _, b in per), default=0.0)
         return q if (pos <= self.tol_p and ang <= self.tol_a) else None
 
 
@@ -246,10 +262,12 @@ def _perturb(ctx: AdaptContext, q: np.ndarray, i: int, rng: np.random.Generator)
 
 def project(ctx: AdaptContext, q_bar: np.ndarray, stance: Stance, rng: np.random.Generator, *,
             unload: Sequence[str] = (), com_target: np.ndarray | None = None,
-            exclusions: Sequence[tuple[str, str]] = ()) -> Projection:
+            exclusions: Sequence[tuple[str, str]] = (), restarts: int | None = None,
+            pinned: dict[str, np.ndarray] | None = None) -> Projection:
     """Algorithm 1: q ∈ F(stance) near q_bar; with ``unload``, the stance minus each listed limb
     must be feasible too (that limb carries no force: it is about to move, or has just landed).
-    The physics-constrained IK repair treats the first listed limb as a zero-force contact."""
+    The physics-constrained IK repair treats the first listed limb as a zero-force contact.
+    ``pinned``: limb -> 4x4 T_world_surface for holds whose free grasp roll is fixed instead."""
     ctx.stats.projections += 1
     robot, env = ctx.robot, ctx.env
     p = ctx.settings.projection
@@ -269,15 +287,17 @@ def project(ctx: AdaptContext, q_bar: np.ndarray, stance: Stance, rng: np.random
         out = []
         for h in stance.holds:
             kind = pcik.ZERO_FORCE if (unload and h.limb == unload[0]) else pcik.REGULAR
-            out.append(pcik.ContactSpec(h.limb, kind, hold=h))
+            out.append(pcik.ContactSpec(h.limb, kind, hold=h, pose=(pinned or {}).get(h.limb)))
         return out
+
+    targets = {h.limb: (pinned or {}).get(h.limb, h) for h in stance.holds} if pinned else stance
 
     last = None
     repairs_left = p.repair_attempts
-    for i in range(p.restarts + 1):
+    for i in range((p.restarts if restarts is None else restarts) + 1):
         q0 = q_bar if i == 0 else _perturb(ctx, q_bar, i, rng)
         t0 = time.perf_counter()
-        r = core_ik.solve(robot, env, q0, stance, posture=q_bar, com_target=com_target, params=ctx.ik_params,
+        r = core_ik.solve(robot, env, q0, targets, posture=q_bar, com_target=com_target, params=ctx.ik_params,
                           hold_params=ctx.hold_params)
         ctx.stats.ik_calls += 1
         ctx.stats.time_ik_s += time.perf_counter() - t0
@@ -406,27 +426,202 @@ def _shift_base(q: np.ndarray, d: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------------
+# grasp roll
+
+
+def grasp_pins(ctx: AdaptContext, q: np.ndarray, stance: Stance, moving_limb: str) -> dict[str, np.ndarray]:
+    """Pinned pose [4x4] of the moving hand's new grasp: its hold's nominal pose (the design's
+    convention: the palm on the robot's side of the rung, ``grasp_palm_angle_deg`` above the
+    horizontal; the IK otherwise leaves the roll about the rung free); {} for a foot / no limb."""
+    h = stance.hold(moving_limb) if moving_limb else None
+    if h is None or not h.bilateral:
+        return {}
+    return {h.limb: nominal_grasp_pose(ctx, h, q)}
+
+
+def nominal_grasp_pose(ctx: AdaptContext, hold: Hold, q: np.ndarray) -> np.ndarray:
+    """[4x4] nominal T_world_surface of a grasp (of the two grasp axis directions, the one nearer
+    the hand's orientation at q)."""
+    seed = ctx.robot.T_world_surface(hold.limb, q)[:3, :3]
+    return np.asarray(holds_mod.hold_target(ctx.robot, ctx.env, hold, params=ctx.hold_params,
+                                            R_world_surface_seed=seed).T_world_surface)
+
+
+def _rolled(ctx: AdaptContext, q: np.ndarray, pins: dict[str, np.ndarray]) -> bool:
+    tol = ctx.settings.projection.grasp_roll_tolerance
+    return any(pose_deviation(ctx.robot.T_world_surface(limb, q), T)[1] > tol for limb, T in pins.items())
+
+
+def end_configuration(ctx: AdaptContext, q_bar: np.ndarray, q_s: np.ndarray, stance: Stance, moving_limb: str,
+                      unload: Sequence[str], rng: np.random.Generator, fallbacks: bool = True) -> Projection:
+    """Step 2 of Adapt-Primitive: q_e in F(stance) from the primitive's end configuration q_bar.
+
+    With ``fallbacks`` (not for a contact plan's own end configurations), two more tries, each with
+    ``projection.start_seed_restarts`` restarts:
+
+    - a moving hand whose new grasp rolled about the rung by more than
+      ``projection.grasp_roll_tolerance`` from the hold's nominal pose is projected again with that
+      roll pinned (:func:`grasp_pins`; the free result is kept when this fails);
+    - when q_bar cannot be projected at all (the designed posture does not fit this ladder, e.g.
+      its pelvis placement on a much steeper one): the current configuration q_s, the moving limb
+      brought to its new hold (a CoM primitive: the physics repair unloading the next limb).
+    """
+    pp = ctx.settings.projection
+    proj = project(ctx, q_bar, stance, rng, unload=unload)
+    if not fallbacks or pp.start_seed_restarts < 0:
+        return proj
+    if proj.q is not None:
+        pins = grasp_pins(ctx, proj.q, stance, moving_limb)
+        if not pins or pp.grasp_roll_tolerance < 0.0 or not _rolled(ctx, proj.q, pins):
+            return proj
+        alt = project(ctx, proj.q, stance, rng, unload=unload, pinned=pins, restarts=pp.start_seed_restarts)
+        return alt if alt.q is not None else proj
+    pins = grasp_pins(ctx, q_s, stance, moving_limb) if pp.grasp_roll_tolerance >= 0.0 else {}
+    alt = project(ctx, q_s, stance, rng, unload=unload, pinned=pins or None, restarts=pp.start_seed_restarts)
+    return alt if alt.q is not None else proj
+
+
+# --------------------------------------------------------------------------------------------
+# re-targeting the moving limb's way-points (Cartesian meaning of the design cues)
+
+
+@dataclass(frozen=True)
+class LimbCues:
+    """The designed poses of a limb primitive's moving limb (reference ladder, ladder frame) at
+    each way-point, and each one's anchor weight: 0 = placed relative to the start hold (e.g. the
+    back-off along the palm normal), 1 = relative to the target hold, in between on the
+    transfer between the last start cue and the first target cue."""
+
+    poses: tuple  # 4x4 T_ladder_surface per way-point (q̄s .. q̄e)
+    weights: np.ndarray  # (k + 2,) in [0, 1]
+
+
+def _cue_polyline(prim: Primitive, P_s: np.ndarray, P_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions [m] (ladder frame) and anchor weights of the design's cue poses, start and end
+    included (the same rule as scripts/make_primitives.py: ladder-frame y mirrored for right limbs)."""
+    pts, w = [P_s[:3, 3].copy()], [0.0]
+    for via in prim.via:
+        T = P_s if via.get("from", "start") == "start" else P_e
+        off = np.asarray(via.get("offset", [0.0, 0.0, 0.0]), dtype=float).copy()
+        if via.get("frame", "ladder") == "surface":
+            p = T[:3, 3] + T[:3, :3] @ off
+        else:
+            off[1] *= _side(prim.limb)
+            p = T[:3, 3] + off
+        pts.append(p)
+        w.append(0.0 if via.get("from", "start") == "start" else 1.0)
+    pts.append(P_e[:3, 3].copy())
+    w.append(1.0)
+    return np.array(pts), np.array(w)
+
+
+def limb_cues(ctx: AdaptContext, prim: Primitive) -> LimbCues | None:
+    """The primitive's :class:`LimbCues` (cached per primitive); None without way-points / cues.
+    A way-point's weight is that of its closest point on the cue polyline (searched forward
+    along the polyline, so a path that comes back near an earlier cue keeps its order)."""
+    if not prim.is_limb or len(prim.waypoints) < 3:
+        return None
+    cache = ctx._cues
+    hit = cache.get(id(prim))
+    if hit is not None and hit[0] is prim:
+        return hit[1]
+    data = ctx.robot.model.createData()
+    poses = tuple(np.array(ctx.robot.T_world_surface(prim.limb, q, data)) for q in prim.waypoints)
+    pts, w_cue = _cue_polyline(prim, poses[0], poses[-1])
+    weights = np.zeros(len(poses))
+    seg = 0
+    for i, P in enumerate(poses):
+        p = P[:3, 3]
+        best = (np.inf, seg, 0.0)
+        for j in range(seg, len(pts) - 1):
+            a, b = pts[j], pts[j + 1]
+            ab = b - a
+            t = float(np.clip(np.dot(p - a, ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0))
+            d = float(np.linalg.norm(a + t * ab - p))
+            if d < best[0] - 1e-9:
+                best = (d, j, t)
+        _, seg, t = best
+        weights[i] = (1.0 - t) * w_cue[seg] + t * w_cue[seg + 1]
+    weights[0], weights[-1] = 0.0, 1.0
+    out = LimbCues(poses, np.maximum.accumulate(weights))
+    cache[id(prim)] = (prim, out)
+    return out
+
+
+def retarget_poses(ctx: AdaptContext, prim: Primitive, q_s: np.ndarray, q_e: np.ndarray,
+                   start_hold: Hold | None = None) -> list[np.ndarray] | None:
+    """World poses [4x4] of the moving limb at each way-point with the design cues' meaning kept
+    on this ladder: the designed pose relative to the limb's start pose (weight 0) or actual end
+    pose (weight 1), the rigid correction blended on the Lie group in between. A grasp left
+    (``start_hold``) counts from its nominal pose, as the design did: a grasp the IK rolled about
+    its rung turns back about it within the release zone before backing off along the palm
+    normal (the fingers and the thumb then clear the rungs as designed)."""
+    cues = limb_cues(ctx, prim)
+    if cues is None:
+        return None
+    T_WL = pin.SE3(np.asarray(ctx.env.T_world_ladder, dtype=float))
+    P_s = T_WL * pin.SE3(cues.poses[0])
+    P_e = T_WL * pin.SE3(cues.poses[-1])
+    T_s = (nominal_grasp_pose(ctx, start_hold, q_s) if start_hold is not None and start_hold.bilateral
+           else ctx.robot.T_world_surface(prim.limb, q_s))
+    C_s = pin.SE3(T_s) * P_s.inverse()
+    C_e = pin.SE3(ctx.robot.T_world_surface(prim.limb, q_e)) * P_e.inverse()
+    d = pin.log6(C_s.inverse() * C_e)
+    return [(C_s * pin.exp6(float(w) * d) * T_WL * pin.SE3(P)).homogeneous for w, P in zip(cues.weights, cues.poses)]
+
+
+def pose_deviation(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    """([m] position distance, [rad] rotation angle) between two poses."""
+    ang = float(np.linalg.norm(pin.log3(np.asarray(T_a)[:3, :3].T @ np.asarray(T_b)[:3, :3])))
+    return float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3])), ang
+
+
+# --------------------------------------------------------------------------------------------
 # paths
 
 
-def _interpolate_milestones(ctx: AdaptContext, milestones: list[np.ndarray], projector: ContactProjector
-                            ) -> list[np.ndarray] | None:
+def _interpolate_milestones(ctx: AdaptContext, milestones: list[np.ndarray], projector: ContactProjector,
+                            cache: dict | None = None) -> list[np.ndarray] | None:
+    """Projected interpolation through the milestones; ``cache`` (one per path under repair) keeps
+    the sections between unchanged milestone pairs (the projection is deterministic)."""
     ip = ctx.settings.interpolation
     path = [milestones[0]]
     for qa, qb in zip(milestones[:-1], milestones[1:]):
-        seg = interp.projected_interpolation(ctx.robot.model, qa, qb, projector, ip.max_step, ip.base_scale,
-                                             ip.max_depth)
+        key = (qa.tobytes(), qb.tobytes())
+        seg = cache.get(key) if cache is not None else None
         if seg is None:
-            return None
+            seg = interp.projected_interpolation(ctx.robot.model, qa, qb, projector, ip.max_step, ip.base_scale,
+                                                 ip.max_depth)
+            if seg is None:
+                return None
+            if cache is not None:
+                cache[key] = seg
         path.extend(seg[1:])
     return path
 
 
 def _retract(ctx: AdaptContext, q: np.ndarray, stance: Stance, limb: str, zone_holds: Sequence[Hold],
-             q_target: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray | None:
+             q_target: np.ndarray, rng: np.random.Generator | None = None, cue: np.ndarray | None = None
+             ) -> np.ndarray | None:
     """Retraction: physics-constrained IK from q on the stance (moving limb free), then from
-    increasingly perturbed copies of q (``projection.retract_tries``), each result checked."""
+    increasingly perturbed copies of q (``projection.retract_tries``), each result checked. With
+    ``cue`` (4x4 pose of the moving limb) a first try pulls the limb toward it (a soft zero-force
+    contact: as close as the constraints allow), its result polished onto the stance."""
     rng = rng if rng is not None else np.random.default_rng(0)
+    if cue is not None and limb:
+        contacts = pcik.contacts_from_stance(stance) + [pcik.ContactSpec(limb, pcik.ZERO_FORCE, pose=cue, soft=True)]
+        t0 = time.perf_counter()
+        ctx.stats.pcik_calls += 1
+        pr = pcik.solve(ctx.robot, ctx.env, q, contacts, q_target=q_target, params=ctx.settings.pcik,
+                        feasibility_cfg=ctx.check_cfg, extra_exclusions=zone_exclusions(ctx, q, limb, zone_holds),
+                        self_margin=ctx.settings.planning.self_collision_margin, final_check=False)
+        ctx.stats.time_pcik_s += time.perf_counter() - t0
+        if not [v for v in pr.violated if v != f"reach:{limb}"]:  # the kept holds are made
+            q_c = ContactProjector(ctx, stance, pr.q)(pr.q)
+            if q_c is not None and ctx.check(q_c, stance, zone_exclusions(ctx, q_c, limb, zone_holds)).feasible:
+                ctx.stats.pcik_successes += 1
+                ctx.stats.cue_retractions += 1
+                return q_c
     for k in range(max(1, ctx.settings.projection.retract_tries)):
         seed = q if k == 0 else _perturb(ctx, q, k, rng)
         t0 = time.perf_counter()
@@ -455,11 +650,14 @@ def build_path(ctx: AdaptContext, milestones: list[np.ndarray], stance: Stance, 
     repairs = ctx.settings.interpolation.max_repairs
     milestones = list(milestones)
     res = None
+    # a repair round changes the path next to the new milestones only: the rest is not redone
+    sections: dict = {}
+    checked: dict = {}
     for _ in range(repairs + 1):
-        path = _interpolate_milestones(ctx, milestones, projector)
+        path = _interpolate_milestones(ctx, milestones, projector, sections)
         if path is None:
             return None, milestones, "interpolation"
-        bad = _bad_sections(ctx, path, stance, limb, zone_holds)
+        bad = _bad_sections(ctx, path, stance, limb, zone_holds, checked)
         if not bad:
             return path, milestones, ""
         res = bad[0][2]
@@ -479,12 +677,19 @@ def build_path(ctx: AdaptContext, milestones: list[np.ndarray], stance: Stance, 
 
 
 def _bad_sections(ctx: AdaptContext, path: list[np.ndarray], stance: Stance, limb: str,
-                  zone_holds: Sequence[Hold]) -> list[tuple[int, int, feasibility.FeasibilityResult]]:
-    """Contiguous runs [lo, hi] of infeasible interior configurations, with the first result of each."""
+                  zone_holds: Sequence[Hold], cache: dict | None = None
+                  ) -> list[tuple[int, int, feasibility.FeasibilityResult]]:
+    """Contiguous runs [lo, hi] of infeasible interior configurations, with the first result of
+    each; ``cache`` keeps the results of configurations already checked (same stance and zone)."""
     out: list[tuple[int, int, feasibility.FeasibilityResult]] = []
     run_lo, run_res = -1, None
     for i in range(1, len(path) - 1):
-        res = ctx.check(path[i], stance, zone_exclusions(ctx, path[i], limb, zone_holds))
+        key = path[i].tobytes()
+        res = cache.get(key) if cache is not None else None
+        if res is None:
+            res = ctx.check(path[i], stance, zone_exclusions(ctx, path[i], limb, zone_holds))
+            if cache is not None:
+                cache[key] = res
         if not res.feasible:
             if run_lo < 0:
                 run_lo, run_res = i, res
@@ -566,7 +771,8 @@ def _adapt_limb(ctx: AdaptContext, prim: Primitive, state: ClimbState, attempt: 
     q_bar_e = _shift_base(wps[-1], d_end) if q_end_seed is None else np.asarray(q_end_seed, dtype=float)
     if attempt > 0 and q_end_seed is not None:
         q_bar_e = _perturb(ctx, q_bar_e, attempt, rng)
-    proj = project(ctx, q_bar_e, sigma_e, rng, unload=prim.end_unload)
+    proj = end_configuration(ctx, q_bar_e, state.q, sigma_e, limb, prim.end_unload, rng,
+                             fallbacks=q_end_seed is None)
     if proj.q is None:
         return AttemptFailure(proj.failure, f"{prim.name}: end configuration ({dict(proj.failures)})")
     q_e = proj.q
@@ -574,16 +780,33 @@ def _adapt_limb(ctx: AdaptContext, prim: Primitive, state: ClimbState, attempt: 
     moved = interp.linear_transform(ctx.robot.model, wps, q_s, q_e, ctx.settings.interpolation.base_scale)
     zone = [old, hold]
     projector = ContactProjector(ctx, sigma_t, q_s)
+    ip = ctx.settings.interpolation
+    # the design cues' Cartesian meaning on this ladder (the joint-space transform bends it)
+    wanted = ip.retarget_mount if prim.type == "mount" else ip.retarget_hands if limb in HANDS else ip.retarget_feet
+    cue_poses = retarget_poses(ctx, prim, q_s, q_e, old) if wanted else None
     milestones = [q_s]
-    for q_i in moved[1:-1]:
+    for i, q_i in enumerate(moved[1:-1], start=1):
         if attempt > 0:  # later attempts also explore around the primitive's way-points
             q_i = _perturb(ctx, q_i, attempt, rng)
-        q_p = projector(q_i)
+        q_p, cue = None, None
+        if cue_poses is not None:
+            dp, da = pose_deviation(ctx.robot.T_world_surface(limb, q_i), cue_poses[i])
+            if dp > ip.retarget_position_tolerance or da > ip.retarget_angle_tolerance:
+                cue = cue_poses[i]
+                q_p = projector(q_i, cue=(limb, cue))
+                if q_p is not None:
+                    q_i = q_p
+                    ctx.stats.retargeted += 1
+        if q_p is None:
+            q_p = projector(q_i)
+        if q_p is None and attempt > 0:
+            q_i = moved[i]  # the perturbation took it off the manifold's reach: the way-point itself
+            q_p = projector(q_i)
         if q_p is None:
             return AttemptFailure(f"reach:{limb}", f"{prim.name}: way-point projection")
         res = ctx.check(q_p, sigma_t, zone_exclusions(ctx, q_p, limb, zone))
         if not res.feasible:
-            q_r = _retract(ctx, q_p, sigma_t, limb, zone, q_target=q_i)
+            q_r = _retract(ctx, q_p, sigma_t, limb, zone, q_target=q_i, cue=cue)
             if q_r is None:
                 return AttemptFailure(failure_name(res), f"{prim.name}: way-point")
             q_p = q_r
@@ -606,7 +829,8 @@ def _adapt_com(ctx: AdaptContext, prim: Primitive, state: ClimbState, attempt: i
         q_bar_e = _perturb(ctx, q_bar_e, attempt, rng)
     # the way-points carry the designed CoM placement (make_primitives used com_over); the
     # projection keeps it and the stability check (with the unloaded limb) enforces equilibrium
-    proj = project(ctx, q_bar_e, stance, rng, unload=prim.end_unload)
+    proj = end_configuration(ctx, q_bar_e, state.q, stance, "", prim.end_unload, rng,
+                             fallbacks=q_end_seed is None and bool(prim.end_unload))
     if proj.q is None:
         return AttemptFailure(proj.failure, f"{prim.name}: end configuration ({dict(proj.failures)})")
     q_e = proj.q

@@ -71,6 +71,12 @@ class ProjectionParams:
         "physics-constrained IK repairs (retraction / equilibrium) per projection, at most"))
     retract_tries: int = param(2, unit="-", min=1, description=(
         "retraction of a path configuration: from it, then from perturbed copies (this many tries in all)"))
+    grasp_roll_tolerance: float = param(0.15, unit="rad", min=-1.0, description=(
+        "a moving hand's new grasp rolled more than this about its rung (vs the hold's nominal pose) is "
+        "projected again with the roll pinned (-1: never)"))
+    start_seed_restarts: int = param(3, unit="-", min=-1, description=(
+        "limb / CoM primitives: when the primitive's end configuration cannot be projected, project the start "
+        "configuration (limb on its new hold) with this many restarts (-1: never)"))
 
 
 @dataclass(frozen=True)
@@ -95,6 +101,15 @@ class InterpolationParams:
         "a moving foot closer than this to the hold it leaves / reaches may touch that surface"))
     max_repairs: int = param(4, unit="-", min=0, description=(
         "colliding path sections retracted (a new milestone each) before an adaptation attempt fails"))
+    retarget_hands: bool = param(True, unit="-", description=(
+        "hand primitives: a transformed way-point whose moving hand strays from the design cue's pose "
+        "(relative to the actual start / target hold) is projected onto that pose as well"))
+    retarget_feet: bool = param(True, unit="-", description="the same for foot primitives")
+    retarget_mount: bool = param(False, unit="-", description="the same for the mount (hands from the ground)")
+    retarget_position_tolerance: float = param(0.02, unit="m", min=0.0, description=(
+        "a way-point's moving limb this far from its re-targeted pose is re-targeted"))
+    retarget_angle_tolerance: float = param(0.1, unit="rad", min=0.0, description=(
+        "... or rotated this much from it"))
 
 
 @dataclass(frozen=True)
