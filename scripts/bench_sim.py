@@ -160,7 +160,8 @@ def controller_main(out_path: str, ticks: int, bridge_pid: int, pin_cpu: int = -
     from sensor_msgs.msg import JointState
 
     from climb_core.robot import load_robot
-    from sim_bridge.node import make_executor, pin_process, qos
+    from sim_bridge.node import make_executor, qos
+    from climb_core.ros_env import pin_to_cpus
 
     robot = load_robot("g1")
     controller = StandingPd(robot)
@@ -200,7 +201,7 @@ def controller_main(out_path: str, ticks: int, bridge_pid: int, pin_cpu: int = -
     executor = make_executor()
     executor.add_node(node)
     if pin_cpu >= 0:
-        pin_process([pin_cpu])
+        pin_to_cpus([pin_cpu])
     deadline = time.monotonic() + 600
     try:
         while len(arrivals) < ticks + 1 and time.monotonic() < deadline:

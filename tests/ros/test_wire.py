@@ -230,22 +230,21 @@ def to_ns(stamp: Time) -> int:
 
 PIN_CHECK = """
 import os, threading, time, sys
-from controller_node.node import pin_process
+from climb_core.ros_env import pin_to_cpus
 stop = threading.Event()
 workers = [threading.Thread(target=stop.wait) for _ in range(3)]
 for w in workers:
     w.start()
-pinned = pin_process([int(sys.argv[1])])
+pinned = pin_to_cpus([int(sys.argv[1])])
 masks = {tid: sorted(os.sched_getaffinity(int(tid))) for tid in os.listdir("/proc/self/task")}
 stop.set()
 print(len(masks), sorted(pinned), all(m == [int(sys.argv[1])] for m in masks.values()))
 """
 
 
-@pytest.mark.parametrize("module", ["controller_node.node", "sim_bridge.node"])
-def test_pin_process_pins_every_thread(module):
+def test_pin_to_cpus_pins_every_thread():
     cpu = max(os.sched_getaffinity(0))
-    out = subprocess.run([sys.executable, "-c", PIN_CHECK.replace("controller_node.node", module), str(cpu)],
+    out = subprocess.run([sys.executable, "-c", PIN_CHECK, str(cpu)],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr[-2000:]
     words = out.stdout.split()

@@ -119,7 +119,7 @@ _DATA_POOL: dict[int, tuple[pin.Model, list[pin.Data]]] = {}
 
 
 @contextlib.contextmanager
-def _scratch_data(model: pin.Model) -> Iterator[pin.Data]:
+def scratch_data(model: pin.Model) -> Iterator[pin.Data]:
     """A pin.Data of ``model`` borrowed from a pool (createData costs ~0.25 ms for G1); every
     algorithm run on it recomputes what it reads, so a borrowed Data gives what a new one does."""
     entry = _DATA_POOL.get(id(model))
@@ -138,7 +138,7 @@ def contact_tasks(robot: Any, env: Any, q_seed: np.ndarray, targets: Stance | Ma
                   hold_params: holds_mod.HoldParams | None) -> list[ContactTask]:
     """The :class:`ContactTask` of every hold of ``targets`` (a Stance, or limb -> hold / hold spec),
     hold targets resolved from ``q_seed`` (which grasp axis direction, which sole side)."""
-    with _scratch_data(robot.model) as data:
+    with scratch_data(robot.model) as data:
         pin.framesForwardKinematics(robot.model, data, q_seed)
         return _contact_tasks(robot, env, data, targets, hold_params)
 
@@ -286,7 +286,7 @@ def solve(robot: Any, env: Any, q_seed: np.ndarray, targets: Stance | Mapping[st
 
 def _attempt(robot: Any, q: np.ndarray, tasks: list[ContactTask], posture: np.ndarray, com_target: np.ndarray | None,
              params: IKParams, lo: np.ndarray, hi: np.ndarray) -> IKResult:
-    with _scratch_data(robot.model) as data:
+    with scratch_data(robot.model) as data:
         return _attempt_on(robot, data, q, tasks, posture, com_target, params, lo, hi)
 
 
@@ -366,7 +366,7 @@ def contact_residual(robot: Any, env: Any, q: np.ndarray, targets: Stance | Mapp
     """(worst position error [m], worst angle error [rad]) of the contact tasks at q."""
     params = params or load_ik_params()
     tasks = contact_tasks(robot, env, q, targets, None)
-    with _scratch_data(robot.model) as data:
+    with scratch_data(robot.model) as data:
         pin.forwardKinematics(robot.model, data, q)
         _, _, per = task_errors(robot.model, data, tasks, params.orientation_weight, with_jacobian=False)
     return max((p for p, _ in per), default=0.0), max((a for _, a in per), default=0.0)

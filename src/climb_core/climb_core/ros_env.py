@@ -56,3 +56,29 @@ def apply_local_dds_env(environ: MutableMapping[str, str] | None = None, domain_
             continue
         if target.get(key) != value:
             target[key] = value
+
+
+def pin_to_cpus(cpus, logger=None) -> set[int] | None:
+    """Pin every thread of this process (DDS threads included) to the CPUs ``cpus`` (a node's
+    ``cpu_affinity`` parameter; empty: leave the inherited set). Returns the new CPU set, or None
+    when nothing was pinned; a CPU this machine lacks is reported on ``logger`` (info / warning),
+    not raised."""
+    import os
+
+    if not cpus:
+        return None
+    try:
+        wanted = {int(c) for c in cpus}
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                os.sched_setaffinity(int(tid), wanted)
+            except ProcessLookupError:  # a thread that just ended
+                pass
+        now = os.sched_getaffinity(0)
+    except (OSError, ValueError) as err:
+        if logger is not None:
+            logger.warning(f"cpu_affinity {list(cpus)} refused: {err}")
+        return None
+    if logger is not None:
+        logger.info(f"pinned to CPUs {sorted(now)}")
+    return now

@@ -409,28 +409,14 @@ def _apply_nice(node: ControllerNode) -> None:
         node.get_logger().warning(f"nice({increment}) refused: {err}")
 
 
-def pin_process(cpus) -> set[int]:
-    """Pin every thread of this process (DDS threads included) to ``cpus``; returns the new set."""
-    wanted = {int(c) for c in cpus}
-    for tid in os.listdir("/proc/self/task"):
-        try:
-            os.sched_setaffinity(int(tid), wanted)
-        except ProcessLookupError:  # a thread that just ended
-            pass
-    return os.sched_getaffinity(0)
-
-
 def _apply_affinity(node: ControllerNode) -> None:
+    from climb_core.ros_env import pin_to_cpus
+
     try:
         value = node.get_parameter("cpu_affinity").value
     except ParameterUninitializedException:  # not given: keep the inherited CPU set
         return
-    if not value:
-        return
-    try:
-        node.get_logger().info(f"pinned to CPUs {sorted(pin_process(value))}")
-    except (OSError, ValueError) as err:  # a CPU this machine does not have
-        node.get_logger().warning(f"cpu_affinity {list(value)} refused: {err}")
+    pin_to_cpus(value, node.get_logger())
 
 
 def make_executor() -> Executor:

@@ -27,10 +27,9 @@ The three contact types of the paper:
 """
 from __future__ import annotations
 
-import contextlib
 import math
 from dataclasses import dataclass, field
-from typing import Any, Iterator, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -346,7 +345,7 @@ def solve(robot: Any, env: Any, q_seed: np.ndarray, contacts: Sequence[ContactSp
     lo = model.lowerPositionLimit[7:] + params.joint_limit_margin
     hi = model.upperPositionLimit[7:] - params.joint_limit_margin
     q[7:] = np.clip(q[7:], lo, hi)
-    with _scratch_data(model) as data:
+    with core_ik.scratch_data(model) as data:
         return _solve(robot, env, q, contacts, q_target, params, base_cfg, cfg, data, lo, hi, physics, collision,
                       extra_exclusions, final_check, com_target, self_margin)
 
@@ -564,7 +563,7 @@ def _final(robot: Any, env: Any, q: np.ndarray, contacts: list[ContactSpec], row
            self_margin: float | None = None) -> PCIKResult:
     """Evaluate q: contact errors, then the core check (the IK's margins when ``margins``)."""
     model = robot.model
-    with _scratch_data(model) as data:
+    with core_ik.scratch_data(model) as data:
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)
         _, _, per, _ = rows.evaluate(data, w_ang)
@@ -629,23 +628,6 @@ def check_with_exclusions(robot: Any, env: Any, q: np.ndarray, stance: Stance,
     return res
 
 
-_DATA_POOL: dict[int, tuple[pin.Model, list[pin.Data]]] = {}
-
-
-@contextlib.contextmanager
-def _scratch_data(model: pin.Model) -> Iterator[pin.Data]:
-    """A pin.Data of ``model`` borrowed from a pool (createData costs ~0.25 ms for G1); every
-    algorithm run on it recomputes what it reads, so a borrowed Data gives what a new one does."""
-    entry = _DATA_POOL.get(id(model))
-    if entry is None or entry[0] is not model:
-        entry = (model, [])
-        _DATA_POOL[id(model)] = entry
-    free = entry[1]
-    data = free.pop() if free else model.createData()
-    try:
-        yield data
-    finally:
-        free.append(data)
 
 
 def _solve_qp(H: np.ndarray, c: np.ndarray, A: np.ndarray, upper: np.ndarray, lower: np.ndarray,
