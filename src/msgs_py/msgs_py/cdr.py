@@ -117,25 +117,32 @@ class JointStateData:
     effort: np.ndarray  # [N m]
 
 
-class JointStateReader:
-    """sensor_msgs/JointState; the names (the same every tick) are decoded once and reused while
-    the bytes that encode them do not change."""
+class _NamesCache:
+    """A message's joint-name sequence (the same every tick) decoded once and reused while the
+    bytes that encode it do not change."""
 
     def __init__(self) -> None:
         self._names_bytes = b""
         self._names: list[str] = []
 
-    def read(self, data: bytes) -> JointStateData:
-        r = Reader(data)
-        stamp, _ = read_header(r)
+    def _names_at(self, r: Reader, data: bytes) -> list[str]:
         start = r.pos
         cached = self._names_bytes
         if cached and data[start:start + len(cached)] == cached:
             r.pos = start + len(cached)
-            names = self._names
-        else:
-            names = r.strings()
-            self._names_bytes, self._names = bytes(data[start:r.pos]), names
+            return self._names
+        names = r.strings()
+        self._names_bytes, self._names = bytes(data[start:r.pos]), names
+        return names
+
+
+class JointStateReader(_NamesCache):
+    """sensor_msgs/JointState; names cached (:class:`_NamesCache`)."""
+
+    def read(self, data: bytes) -> JointStateData:
+        r = Reader(data)
+        stamp, _ = read_header(r)
+        names = self._names_at(r, data)
         position, velocity, effort = r.doubles(), r.doubles(), r.doubles()
         return JointStateData(stamp, names, _f64(data, position), _f64(data, velocity), _f64(data, effort))
 
@@ -192,24 +199,13 @@ class JointCommandData:
     values: np.ndarray
 
 
-class JointCommandReader:
-    """climb_msgs/JointCommand; names cached like :class:`JointStateReader`."""
-
-    def __init__(self) -> None:
-        self._names_bytes = b""
-        self._names: list[str] = []
+class JointCommandReader(_NamesCache):
+    """climb_msgs/JointCommand; names cached (:class:`_NamesCache`)."""
 
     def read(self, data: bytes) -> JointCommandData:
         r = Reader(data)
         stamp, _ = read_header(r)
-        start = r.pos
-        cached = self._names_bytes
-        if cached and data[start:start + len(cached)] == cached:
-            r.pos = start + len(cached)
-            names = self._names
-        else:
-            names = r.strings()
-            self._names_bytes, self._names = bytes(data[start:r.pos]), names
+        names = self._names_at(r, data)
         modes = r.octets()
         values = r.doubles()
         return JointCommandData(stamp, names,
