@@ -4,10 +4,13 @@ ladder, write a CSV (one row per ladder, with the constraint that stopped each f
 maps (success like the paper's Fig. 9, and planning time).
 
     scripts/sweep.py [--grid FILE] [--robot g1] [--workers 2] [--timeout 120] [--steps 2]
-                     [--ladders 70/0.20,90/0.35] [--out-dir build/sweep] [--backend local|ray]
+                     [--ladders 70/0.20,90/0.35] [--out-dir build/sweep] [--backend local|ray] [--resume]
 
 Workers are pluggable: local processes by default; ``--backend ray`` sends the same tasks to an
 existing Ray cluster (``--ray-address``, default: the RAY_ADDRESS variable or a local instance).
+Every finished ladder is appended to ``<name>.partial.csv`` at once (a killed sweep keeps what it
+measured); ``--resume`` reuses that journal's rows planned by the same code (git commit, planner
+code and config unchanged), robot, steps, timeout and seed, and plans only the other ladders.
 The last line on standard output is a JSON summary (success rate, median planning time, failures
 by category, the CSV and PNG paths).
 """
@@ -62,13 +65,14 @@ class Progress:
         self.stream.flush()
 
 
-def run_local(tasks, workers: int, progress: Progress) -> list[dict]:
+def run_local(tasks, workers: int, progress: Progress, done) -> list[dict]:
+    """``done(row)`` is called in this process as each row arrives (stamps and journals it)."""
     from planner_node.sweep import run_task
 
     rows = []
     if workers <= 1:
         for t in tasks:
-            rows.append(run_task(t))
+            rows.append(done(run_task(t)))
             progress.update(rows[-1])
         return rows
     import concurrent.futures as cf
@@ -77,12 +81,12 @@ def run_local(tasks, workers: int, progress: Progress) -> list[dict]:
     with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
         futures = [pool.submit(run_task, t) for t in tasks]
         for fut in cf.as_completed(futures):
-            rows.append(fut.result())
+            rows.append(done(fut.result()))
             progress.update(rows[-1])
     return rows
 
 
-def run_ray(tasks, address: str | None, progress: Progress) -> list[dict]:
+def run_ray(tasks, address: str | None, progress: Progress, done) -> list[dict]:
     import os
 
     address = address or os.environ.get("RAY_ADDRESS") or None
@@ -109,8 +113,8 @@ def run_ray(tasks, address: str | None, progress: Progress) -> list[dict]:
     pending = [remote.remote(t) for t in tasks]
     rows = []
     while pending:
-        done, pending = ray.wait(pending, num_returns=1)
-        rows.append(ray.get(done[0]))
+        ready, pending = ray.wait(pending, num_returns=1)
+        rows.append(done(ray.get(ready[0])))
         progress.update(rows[-1])
     return rows
 
@@ -129,6 +133,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--name", default="", help="file stem (default: <robot>_<strategy or default>)")
     ap.add_argument("--backend", choices=("local", "ray"), default="local")
     ap.add_argument("--ray-address", default=None)
+    ap.add_argument("--resume", action="store_true",
+                    help="reuse the rows of <name>.partial.csv planned by the same code and settings")
     args = ap.parse_args(argv)
 
     from climb_core.errors import SpecError
@@ -140,22 +146,39 @@ def main(argv: list[str] | None = None) -> int:
         tasks = sweep.make_tasks(grid, args.robot, args.steps, args.timeout, args.seed, args.strategy, select)
         if args.workers < 1:
             raise SpecError("workers", f"must be >= 1, got {args.workers}")
-        progress = Progress(len(tasks))
+        stem = args.name or f"{args.robot}_{args.strategy or 'default'}"
+        out = pathlib.Path(args.out_dir)
+        version = sweep.code_version(ROOT)
+        journal = sweep.Journal(out / f"{stem}.partial.csv")
+        reused, stale = journal.reusable(tasks, version) if args.resume else ([], 0)
+        if args.resume:
+            print(f"resume: {len(reused)} ladders reused from {journal.path}"
+                  + (f" ({stale} rows of other code or settings ignored)" if stale else ""), file=sys.stderr)
+        journal.start(reused)
+        finished = {(round(r["inclination_deg"], 6), round(r["rung_spacing"], 6)) for r in reused}
+        todo = [t for t in tasks if (round(t.inclination_deg, 6), round(t.rung_spacing, 6)) not in finished]
+
+        def done(row: dict) -> dict:
+            row["code_version"] = version
+            journal.append(row)
+            return row
+
+        progress = Progress(len(todo))
         t0 = time.monotonic()
-        rows = (run_ray(tasks, args.ray_address, progress) if args.backend == "ray"
-                else run_local(tasks, args.workers, progress))
+        rows = reused + (run_ray(todo, args.ray_address, progress, done) if args.backend == "ray"
+                         else run_local(todo, args.workers, progress, done))
     except SpecError as exc:
         print(f"error: {exc}", file=sys.stderr)
         print(json.dumps({"success": False, "failure_reason": f"spec: {exc}"}))
         return 2
-    stem = args.name or f"{args.robot}_{args.strategy or 'default'}"
-    out = pathlib.Path(args.out_dir)
     csv_path = sweep.write_csv(rows, out / f"{stem}.csv")
+    journal.close()
     png_path = sweep.heat_maps(rows, out / f"{stem}.png",
                                title=f"{args.robot}: {tasks[0].steps}-step climbs, {tasks[0].timeout_s:g} s cutoff")
     stats = sweep.statistics(rows)
     stats.update(csv=str(csv_path), png=str(png_path), wall_time_s=round(time.monotonic() - t0, 1),
-                 robot=args.robot, backend=args.backend, workers=args.workers)
+                 robot=args.robot, backend=args.backend, workers=args.workers, reused=len(reused),
+                 code_version=version)
     print(json.dumps(stats))
     return 0
 

@@ -95,3 +95,49 @@ def test_ray_backend_runs_the_tasks_on_a_local_ray_instance(tmp_path):
     (row,) = sweep.read_csv(summary["csv"])
     assert float(row["inclination_deg"]) == 70.0 and float(row["rung_spacing"]) == 0.20
     assert row["success"] is True and int(row["rungs_reached"]) == 2
+
+
+def journal_row(inclination_deg: float, rung_spacing: float, version: str, **extra) -> dict:
+    row = {"inclination_deg": inclination_deg, "rung_spacing": rung_spacing, "success": True, "plan_time_s": 3.2,
+           "plan_cpu_s": 3.1, "failure_category": "", "failure_constraint": "", "frontier_constraint": "",
+           "failure_detail": "", "rungs_reached": 2, "n_stances": 22, "attempts": 21, "backtracks": 0, "robot": "g1",
+           "strategy": "forward", "steps": 2, "timeout_s": 60.0, "seed": 0, "code_version": version}
+    row.update(extra)
+    return row
+
+
+def test_journal_keeps_rows_of_the_same_code_and_settings_only(tmp_path):
+    tasks = sweep.make_tasks(grid_doc(), "g1", timeout_s=60.0, select=[(70.0, 0.20), (71.0, 0.20), (72.0, 0.20)])
+    journal = sweep.Journal(tmp_path / "j.partial.csv")
+    assert journal.reusable(tasks, "abc") == ([], 0)  # no journal yet
+    journal.start([])
+    journal.append(journal_row(70.0, 0.20, "abc"))
+    journal.append(journal_row(71.0, 0.20, "older"))  # planned by other code
+    journal.append(journal_row(72.0, 0.20, "abc", timeout_s=30.0))  # another cutoff
+    journal.append(journal_row(73.0, 0.20, "abc"))  # not a point of this run
+    kept, ignored = journal.reusable(tasks, "abc")
+    assert [(r["inclination_deg"], r["rung_spacing"]) for r in kept] == [(70.0, 0.20)] and ignored == 3
+    journal.close()
+    assert not journal.path.exists()
+    (tmp_path / "bad.partial.csv").write_text("not,a\nsweep,journal\n")
+    with pytest.raises(SpecError, match="resume"):
+        sweep.Journal(tmp_path / "bad.partial.csv").reusable(tasks, "abc")
+
+
+def test_resumed_sweep_reuses_the_journal_instead_of_planning(tmp_path):
+    """A sweep killed after one ladder: `--resume` takes that ladder's row from the journal (no
+    planning: the run finishes in seconds), writes the CSV and removes the journal."""
+    version = sweep.code_version(ROOT)
+    journal = sweep.Journal(tmp_path / "resumed.partial.csv")
+    journal.start([journal_row(70.0, 0.20, version, plan_time_s=4.25)])
+    cmd = [sys.executable, str(ROOT / "scripts" / "sweep.py"), "--ladders", "70/0.20", "--timeout", "60",
+           "--out-dir", str(tmp_path), "--name", "resumed", "--resume", "--workers", "1"]
+    if GRID.is_file():
+        cmd += ["--grid", str(GRID)]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    summary = json.loads(out.stdout.strip().splitlines()[-1])
+    assert summary["reused"] == 1 and summary["n"] == 1 and summary["code_version"] == version
+    (row,) = sweep.read_csv(summary["csv"])
+    assert row["plan_time_s"] == 4.25 and row["code_version"] == version  # the journal's row, not a new plan
+    assert not journal.path.exists()

@@ -151,11 +151,19 @@ def library_dir(robot: str, strategy: str, root: str | pathlib.Path | None = Non
     return base / robot / strategy
 
 
+#: libyaml's loader when PyYAML was built with it (a library file parses in ~0.1 s instead of 0.5 s)
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+def _load_yaml(text: str):
+    return yaml.load(text, Loader=_YAML_LOADER)
+
+
 def load_design(robot: str, strategy: str, root: str | pathlib.Path | None = None) -> dict:
     path = library_dir(robot, strategy, root) / DESIGN_FILE
     if not path.is_file():
         raise SpecError("primitives.design", f"no design file {path}")
-    data = yaml.safe_load(path.read_text())
+    data = _load_yaml(path.read_text())
     if not isinstance(data, dict):
         raise SpecError("primitives.design", f"{path} must be a mapping")
     return data
@@ -260,7 +268,7 @@ def load_library(robot: str = "g1", strategy: str = "forward", root: str | pathl
         raise SpecError("primitives", f"no primitive library {path}; produce it with "
                                       f"scripts/make_primitives.py --robot {robot} --strategy {strategy}")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = _load_yaml(path.read_text())
     except yaml.YAMLError as exc:
         raise SpecError("primitives", f"{path}: invalid YAML: {exc}") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:

@@ -25,7 +25,7 @@ from climb_core.errors import SpecError
 
 CSV_FIELDS = ("inclination_deg", "rung_spacing", "success", "plan_time_s", "plan_cpu_s", "failure_category",
               "failure_constraint", "frontier_constraint", "failure_detail", "rungs_reached", "n_stances", "attempts",
-              "backtracks", "robot", "strategy", "steps", "timeout_s", "seed")
+              "backtracks", "robot", "strategy", "steps", "timeout_s", "seed", "code_version")
 
 
 @dataclass(frozen=True)
@@ -91,6 +91,83 @@ def make_tasks(grid: dict, robot: str, steps: int | None = None, timeout_s: floa
     if wanted is not None and len(tasks) != len(wanted):
         raise SpecError("ladders", "some selected (inclination, spacing) pairs are not grid points")
     return tasks
+
+
+def code_version(root: str | pathlib.Path | None = None) -> str:
+    """The project's git commit (short hash), ``+dirty`` when planner code or config differs from
+    it: a sweep's rows say which code planned them, and a resumed sweep only reuses rows of the
+    same version. ``unknown`` outside a git checkout."""
+    import subprocess
+
+    from climb_core.ros_env import project_root
+
+    root = pathlib.Path(root) if root is not None else project_root()
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short=10", "HEAD"], cwd=root, capture_output=True,
+                              text=True, timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "src", "config", "scripts"], cwd=root,
+                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
+
+
+def _same_run(row: dict, task: SweepTask, version: str) -> bool:
+    try:
+        return (row.get("robot") == task.robot and int(row.get("steps") or -1) == task.steps
+                and float(row.get("timeout_s") or -1.0) == float(task.timeout_s) and int(row.get("seed") or -1) == task.seed
+                and row.get("code_version") == version and (not task.strategy or row.get("strategy") == task.strategy))
+    except ValueError:
+        return False
+
+
+class Journal:
+    """Rows appended to ``<stem>.partial.csv`` as they complete (flushed to disk each time), so a
+    sweep that is killed or times out keeps what it measured; :meth:`reusable` hands them to a
+    resumed run (``scripts/sweep.py --resume``)."""
+
+    def __init__(self, path: str | pathlib.Path):
+        self.path = pathlib.Path(path)
+
+    def reusable(self, tasks: list[SweepTask], version: str) -> tuple[list[dict], int]:
+        """Rows of the journal that match a task of this run (same grid point, robot, strategy,
+        steps, timeout, seed and code version), and how many rows did not match."""
+        if not self.path.is_file():
+            return [], 0
+        try:
+            old = read_csv(self.path)
+        except (OSError, KeyError, ValueError, csv.Error) as exc:
+            raise SpecError("resume", f"{self.path} is not a sweep journal: {exc}") from None
+        by_point = {(round(t.inclination_deg, 6), round(t.rung_spacing, 6)): t for t in tasks}
+        keep, seen = [], set()
+        for r in old:
+            key = (round(r["inclination_deg"], 6), round(r["rung_spacing"], 6))
+            t = by_point.get(key)
+            if t is None or key in seen or not _same_run(r, t, version):
+                continue
+            seen.add(key)
+            keep.append(r)
+        return keep, len(old) - len(keep)
+
+    def start(self, rows: list[dict]) -> None:
+        """Begin a journal holding ``rows`` (those reused from the last one)."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with self.path.open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(CSV_FIELDS), extrasaction="ignore")
+            w.writeheader()
+            w.writerows(rows)
+
+    def append(self, row: dict) -> None:
+        import os
+
+        with self.path.open("a", newline="") as f:
+            csv.DictWriter(f, fieldnames=list(CSV_FIELDS), extrasaction="ignore").writerow(row)
+            f.flush()
+            os.fsync(f.fileno())
+
+    def close(self) -> None:
+        """The sweep completed (its CSV is written): the journal goes."""
+        self.path.unlink(missing_ok=True)
 
 
 def failure_category(constraint: str) -> str:
