@@ -404,10 +404,18 @@ def build(args: argparse.Namespace) -> int:
         return mount_height, hands_height, waypoints[-1], end_stance
 
     fallback = bool(args.reference) and str(design.get("fallback", "")) == "main"
+    # a partial variant may also leave primitives to the main library on purpose (design.yaml
+    # `main_primitives: [...]`): e.g. the hand placements, whose target rung follows the designed
+    # hand height of the library they come from
+    use_main = [str(n) for n in (design.get("main_primitives") or [])]
+    if use_main and not fallback:
+        raise SpecError("design.main_primitives", "needs `fallback: main` (a variant built with --reference)")
     main_ctx = None
     try:
         for name in order:
             try:
+                if name in use_main:
+                    raise InfeasibleError("design.main_primitives", f"{name}: the main library's primitive")
                 mount_height, hands_height, q, stance = design_one(name, q, stance, mount_height, hands_height)
             except InfeasibleError as exc:
                 if not fallback or name in prims:
@@ -444,8 +452,7 @@ def build(args: argparse.Namespace) -> int:
         robot=robot.config.name, strategy=args.strategy, facing=str(design.get("facing", "forward")),
         reference_ladder=_scenario_dict(design["reference_ladder"], scenario),
         joint_names=tuple(robot.joint_names),
-        sequences=({k: tuple(n for n in v if n in prims) for k, v in design["sequences"].items()
-                    if all(n in prims for n in v)} or ({} if args.reference else {"cycle": tuple(prims)})),
+        sequences=_stored_sequences(design["sequences"], prims, bool(args.reference)),
         primitives=prims,
         holds={k: float(v) for k, v in H.items()}, mount_height=float(mount_height),
         hands_above_feet_height=float(hands_height), initial_fixture=str(design.get("initial_fixture", "standing")),
@@ -471,6 +478,19 @@ def build(args: argparse.Namespace) -> int:
         if not res.success:
             return 1
     return 0
+
+
+def _stored_sequences(sequences: dict, prims: dict, variant: bool) -> dict:
+    """The sequences whose primitives were all designed. The planner walks a variant's own
+    sequences (approach, mount, first_cycle, cycle) as soon as it has a `cycle`, so a partial
+    variant (`fallback: main`) that lost its mount keeps no sequence at all: the planner then takes
+    the main library's sequence and adapts this variant's primitives where it has them."""
+    out = {k: tuple(v) for k, v in sequences.items() if all(n in prims for n in v)}
+    if variant and "cycle" in out and not all(k in out for k in sequences if k in ("approach", "mount")):
+        print(f"  partial variant: {', '.join(k for k in sequences if k not in out)} not designed; "
+              f"the main library's sub-task sequence is used", file=sys.stderr)
+        return {}
+    return out or ({} if variant else {"cycle": tuple(prims)})
 
 
 def design_hold_config(cfg, design: dict):

@@ -130,17 +130,20 @@ def plan_climb(robot: Any, env: Any, steps: int, *, library: PrimitiveLibrary | 
         c = AdaptContext(robot, env, lib, settings, feasibility_cfg)
         c.stats = ctx.stats
         contexts.append(c)
-    subtasks = subtask_sequence(main if not library.sequences.get("cycle") else library, stance0, steps)
+    # the nearest library's own sequences when it has a whole climb (a partial variant may lack its
+    # mount): otherwise the main library's
+    own = all(library.sequences.get(k) for k in ("mount", "cycle"))
+    subtasks = subtask_sequence(library if own else main, stance0, steps)
     state0 = ClimbState(np.asarray(q0, dtype=float).copy(), stance0)
     per_variant = max(1, p.attempts_per_variant)
 
     def attempt(prim: Primitive, state: ClimbState, j: int, rng: np.random.Generator):
-        # the nearest reference's primitive first; later attempts the next nearest references'
-        k = min(j // per_variant, len(contexts) - 1)
-        # a partial variant lacks some primitives: the next library (by reference distance) that has it
-        while k + 1 < len(contexts) and prim.name not in contexts[k].library.primitives:
-            k += 1
-        c = contexts[k]
+        # the nearest reference's primitive first; later attempts the next nearest references'.
+        # A partial variant lacks some primitives: only the libraries that have this one count,
+        # so attempt 0 of the next library is the seed hold and its later attempts are perturbed.
+        having = [c for c in contexts if prim.name in c.library.primitives] or [contexts[-1]]
+        k = min(j // per_variant, len(having) - 1)
+        c = having[k]
         return adapt_primitive(c, c.library.primitives.get(prim.name, prim), state, j - k * per_variant, rng)
 
     report = msp.multi_step_search(state0, subtasks, attempt, m=p.attempts_per_subtask,
