@@ -83,3 +83,25 @@ def test_partial_variant_file_loads_without_sequences(tmp_path):
     (tmp_path / "library.yaml").write_text(yaml.safe_dump(data))
     with pytest.raises(SpecError, match="mount"):
         load_library(path=tmp_path / "library.yaml")
+
+
+def test_partial_variant_without_its_mount_keeps_no_sequence(mk):
+    design = {"approach": ["a1"], "mount": ["m1", "m2"], "cycle": ["c1", "c2"]}
+    # a variant that lost a mount primitive: the planner must take the main library's sequence
+    assert mk._stored_sequences(design, {"a1": 0, "m1": 0, "c1": 0, "c2": 0}, variant=True) == {}
+    whole = mk._stored_sequences(design, {"a1": 0, "m1": 0, "m2": 0, "c1": 0, "c2": 0}, variant=True)
+    assert whole == {"approach": ("a1",), "mount": ("m1", "m2"), "cycle": ("c1", "c2")}
+    # only feet / CoM primitives: no sequence either
+    assert mk._stored_sequences(design, {"c1": 0}, variant=True) == {}
+
+
+def test_wide_rung_variants_shipped_and_ranked_for_wide_ladders():
+    libs = {lib.path.name: lib for lib in load_variants("g1", "forward")}
+    wide = libs["library_75_0.35.yaml"]
+    assert wide.holds["hands_above_feet_rungs"] == 3 and wide.holds["mount_rung"] == 3
+    assert wide.sequences.get("cycle") and wide.sequences.get("mount")
+    steep = libs["library_84_0.32.yaml"]  # partial: no hand placement of its own, no cycle (the main one's runs)
+    assert not steep.sequences.get("cycle") and "place_left_hand" not in steep.primitives
+    assert "place_right_foot" in steep.primitives
+    assert rank_variants(list(libs.values()), 74.0, 0.35)[0].path.name == "library_75_0.35.yaml"
+    assert rank_variants(list(libs.values()), 84.0, 0.33)[0].path.name == "library_84_0.32.yaml"
