@@ -155,8 +155,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"resume: {len(reused)} ladders reused from {journal.path}"
                   + (f" ({stale} rows of other code or settings ignored)" if stale else ""), file=sys.stderr)
         journal.start(reused)
-        finished = {(round(r["inclination_deg"], 6), round(r["rung_spacing"], 6)) for r in reused}
-        todo = [t for t in tasks if (round(t.inclination_deg, 6), round(t.rung_spacing, 6)) not in finished]
+        finished = {sweep.grid_point(r["inclination_deg"], r["rung_spacing"]) for r in reused}
+        todo = [t for t in tasks if t.point not in finished]
 
         def done(row: dict) -> dict:
             row["code_version"] = version

@@ -40,8 +40,17 @@ class SweepTask:
     strategy: str = ""
 
     @property
+    def point(self) -> tuple[float, float]:
+        """The grid point (inclination [deg], spacing [m]) rounded for matching rows and selections."""
+        return grid_point(self.inclination_deg, self.rung_spacing)
+
+    @property
     def name(self) -> str:
         return f"incl{self.inclination_deg:g}_sp{self.rung_spacing:.2f}"
+
+
+def grid_point(inclination_deg: float, rung_spacing: float) -> tuple[float, float]:
+    return round(float(inclination_deg), 6), round(float(rung_spacing), 6)
 
 
 def _range(field: str, r: Any) -> list[float]:
@@ -77,11 +86,11 @@ def make_tasks(grid: dict, robot: str, steps: int | None = None, timeout_s: floa
     spacings = _range("rung_spacing", grid["grid"]["rung_spacing"])
     steps = int(grid.get("steps", 2) if steps is None else steps)
     timeout_s = float(grid.get("timeout_s", 120.0) if timeout_s is None else timeout_s)
-    wanted = None if select is None else {(round(a, 6), round(b, 6)) for a, b in select}
+    wanted = None if select is None else {grid_point(a, b) for a, b in select}
     tasks = []
     for inc in incls:
         for sp in spacings:
-            if wanted is not None and (round(inc, 6), round(sp, 6)) not in wanted:
+            if wanted is not None and grid_point(inc, sp) not in wanted:
                 continue
             spec = copy.deepcopy(grid["base"])
             spec.setdefault("ladder", {})
@@ -138,10 +147,10 @@ class Journal:
             old = read_csv(self.path)
         except (OSError, KeyError, ValueError, csv.Error) as exc:
             raise SpecError("resume", f"{self.path} is not a sweep journal: {exc}") from None
-        by_point = {(round(t.inclination_deg, 6), round(t.rung_spacing, 6)): t for t in tasks}
+        by_point = {t.point: t for t in tasks}
         keep, seen = [], set()
         for r in old:
-            key = (round(r["inclination_deg"], 6), round(r["rung_spacing"], 6))
+            key = grid_point(r["inclination_deg"], r["rung_spacing"])
             t = by_point.get(key)
             if t is None or key in seen or not _same_run(r, t, version):
                 continue
