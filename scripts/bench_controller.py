@@ -173,7 +173,7 @@ def ros_run(ticks: int, pin: bool = True) -> dict:
     stance, q = fixtures.get("ladder_4_contacts", robot, world)
     plan = plan_of(robot, world, stance, [limb_transfer(robot, world, stance, q, "right_hand", "rung_6", -0.15)])
     # diagnostics samples: (wall [s], sim stamp [ns], controller ticks, bridge CPU [ms], controller CPU [ms])
-    rec = {"answered": 0, "samples": [], "diag": {}}
+    rec = {"answered": 0, "samples": [], "diag": {}, "bridge": {}}
     reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
     rclpy.init()
     node = Node("bench_controller_observer")
@@ -184,6 +184,8 @@ def ros_run(ticks: int, pin: bool = True) -> dict:
 
     def on_diag(msg):
         for s in msg.status:
+            if s.name == "sim_bridge/step":  # the bridge's loop: physics step, state publish, wait
+                rec["bridge"] = {kv.key: kv.value for kv in s.values}
             if s.name == "controller":
                 now = time.monotonic()
                 rec["diag"] = {kv.key: kv.value for kv in s.values}
@@ -238,7 +240,15 @@ def ros_run(ticks: int, pin: bool = True) -> dict:
             # parts of state_to_command: messages -> RobotState (before the tick), command fill + publish call
             "state_build_ms": {"p50": d.get("state_p50_ms"), "p99": d.get("state_p99_ms"), "max": d.get("state_max_ms")},
             "publish_ms": {"p50": d.get("publish_p50_ms"), "p99": d.get("publish_p99_ms"), "max": d.get("publish_max_ms")},
+            # the bridge's side of the loop (its last 1000 ticks): physics step, the state's
+            # publish calls, the wait from the last publish to the command's arrival
+            "bridge_ms": {part: {q: _float(rec["bridge"].get(f"{part}_{q}_ms")) for q in ("p50", "p99", "max")}
+                          for part in ("step", "publish", "wait")},
             "load_average_1min_end": round(os.getloadavg()[0], 2), **window}
+
+
+def _float(value) -> float | None:
+    return None if value is None else float(value)
 
 
 def replay(path: str) -> dict:

@@ -93,6 +93,20 @@ def test_lockstep_accepts_only_the_command_stamped_for_the_current_tick():
     assert not stale.accepted and bridge.stale == 2
 
 
+def test_the_step_summary_splits_the_lockstep_period_into_publish_wait_and_step():
+    bridge = make()
+    summaries = [d for d in bridge.drain_diagnostics() if d.name == "sim_bridge/step"]
+    for i in range(3):
+        bridge.note_lockstep_times(publish_s=0.0002, wait_s=0.001 * (i + 1))
+        bridge.offer_command(NAMES, [TORQUE] * 3, [0.0, 0.0, 0.0], stamp_ns=bridge.stamp_ns)
+        bridge.step_lockstep()
+        summaries += [d for d in bridge.drain_diagnostics() if d.name == "sim_bridge/step"]
+    values = summaries[0].values  # the first tick's summary: one publish and one wait so far
+    assert float(values["publish_p50_ms"]) == pytest.approx(0.2) and float(values["wait_max_ms"]) == pytest.approx(1.0)
+    assert float(values["step_p50_ms"]) >= 0.0
+    assert "wait_p99_ms" in values and "publish_max_ms" in values
+
+
 def test_lost_controller_damps_every_joint_and_is_reported_then_recovers():
     bridge = make()
     bridge.backend.v[:] = [1.0, -2.0, 0.5]  # [rad/s] moving joints

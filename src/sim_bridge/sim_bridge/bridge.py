@@ -70,6 +70,9 @@ class SimBridge:
         # called with the new stamp [ns] once the physics reached it, before the sensors are read
         self.after_advance: Callable[[int], None] | None = None
         self._step_times: deque[float] = deque(maxlen=1000)
+        # lock-step over ROS (the node reports them): state publish calls, wait for the command
+        self._publish_times: deque[float] = deque(maxlen=1000)
+        self._wait_times: deque[float] = deque(maxlen=1000)
         self._next_summary_ns = 0
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -193,12 +196,22 @@ class SimBridge:
             self._next_summary_ns = self.stamp_ns + int(round(self.params.diagnostics.period_s * 1e9))
         return self.state
 
+    def note_lockstep_times(self, publish_s: float, wait_s: float) -> None:
+        """[s] wall time of one tick's state publish calls and of the wait for its command (the
+        node's lock-step loop): with the step time they split the loop's period."""
+        self._publish_times.append(publish_s)
+        self._wait_times.append(wait_s)
+
+    @staticmethod
+    def _time_stats(times: deque[float]) -> dict[str, float]:
+        if not times:
+            return {"p50_ms": 0.0, "p99_ms": 0.0, "max_ms": 0.0}
+        arr = np.array(times) * 1e3
+        return {"p50_ms": float(np.median(arr)), "p99_ms": float(np.percentile(arr, 99)), "max_ms": float(arr.max())}
+
     def step_time_stats(self) -> dict[str, float]:
         """[ms] median / p99 / max wall time of backend.step over the last 1000 ticks."""
-        if not self._step_times:
-            return {"p50_ms": 0.0, "p99_ms": 0.0, "max_ms": 0.0}
-        arr = np.array(self._step_times) * 1e3
-        return {"p50_ms": float(np.median(arr)), "p99_ms": float(np.percentile(arr, 99)), "max_ms": float(arr.max())}
+        return self._time_stats(self._step_times)
 
     def _summary(self) -> None:
         stats = self.step_time_stats()
@@ -211,7 +224,7 @@ class SimBridge:
                    stale=self.stale, lost_ticks=self.lost_ticks, watchdog_ticks=self.watchdog_ticks,
                    step_p50_ms=f"{stats['p50_ms']:.3f}", step_p99_ms=f"{stats['p99_ms']:.3f}",
                    step_max_ms=f"{stats['max_ms']:.3f}", tripped=tripped,
-                   fell=bool(state.fell) if state is not None else False)
+                   fell=bool(state.fell) if state is not None else False, **self._lockstep_values())
         # Ongoing faults are repeated with every summary (diagnostic_updater convention), so a
         # subscriber that joins late still sees them, not only the edge that raised them.
         if self.watchdog_active:
@@ -219,6 +232,13 @@ class SimBridge:
                        watchdog_ticks=self.watchdog_ticks)
         if self.controller_lost:
             self._diag(ERROR, "controller", "controller lost: damping every joint", lost_ticks=self.lost_ticks)
+
+    def _lockstep_values(self) -> dict[str, str]:
+        out = {}
+        for name, times in (("publish", self._publish_times), ("wait", self._wait_times)):
+            if times:
+                out.update({f"{name}_{k}": f"{v:.3f}" for k, v in self._time_stats(times).items()})
+        return out
 
     def _collect_events(self) -> None:
         for event in self.backend.drain_events():

@@ -273,9 +273,11 @@ class SimBridgeNode(Node):
         self.wait_for_controller(executor)
         while rclpy.ok() and not self._done():
             self._restart = False
+            start = time.monotonic()
             self.publish_state(self.bridge.state)
             self.flush_diagnostics()
-            deadline = time.monotonic() + self.bridge.wait_budget()
+            published = time.monotonic()
+            deadline = published + self.bridge.wait_budget()
             while not self.bridge.command_ready() and not self._restart:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0.0:
@@ -283,6 +285,7 @@ class SimBridgeNode(Node):
                 executor.spin_once(timeout_sec=min(remaining, 0.1))
             if self._restart:
                 continue  # reset while waiting: publish the new t = 0 state
+            self.bridge.note_lockstep_times(published - start, time.monotonic() - published)
             self.bridge.step_lockstep()
         self.publish_state(self.bridge.state)
         self.flush_diagnostics()
