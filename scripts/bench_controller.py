@@ -15,7 +15,8 @@ solved again through qpsolvers (proxqp, and daqp behind qpsolvers' interface). R
 plan; the node reports its own state-received -> command-published latency on diagnostics. By
 default the bridge is pinned to CPU 0 and the controller to CPU 1 (their ``cpu_affinity``
 parameter; ``--ros-pin off`` leaves them to the scheduler, ``both`` measures both ways in the same
-run). This process (the observer) only reads the controller's diagnostics (every 200 ticks) once
+run; ``--ros-composed`` adds a run of both nodes composed in one ``sim_graph`` process). This
+process (the observer) only reads the controller's diagnostics (every 200 ticks) once
 the plan is sent: the lock-step rate is the sim time / wall time between the first and the last
 of them, and the CPU time per tick of both processes (all threads, /proc) over the same window.
 The paper's controller (multicontact_darpa_tasks.txt): 7.56 ms average, 16.8 ms peak.
@@ -81,8 +82,10 @@ def record(scenario: str, seconds: float):
         backend.close()
 
 
-def time_controller(states, stance, plan, robot, env, ticks: int, sample_every: int = 20):
-    """Replay ``states`` through fresh controllers until ``ticks`` ticks; per-tick wall times."""
+def time_controller(states, stance, plan, robot, env, ticks: int, sample_every: int = 20, idle_gap_s: float = 0.0):
+    """Replay ``states`` through fresh controllers until ``ticks`` ticks; per-tick wall times.
+    ``idle_gap_s``: sleep this long before each tick (the lock-step node idles ~4 ms between two
+    ticks while the bridge steps; back-to-back ticks find their data still in the caches)."""
     from controller_node.controller import Controller
     from controller_node.params import load_controller_params
 
@@ -98,6 +101,8 @@ def time_controller(states, stance, plan, robot, env, ticks: int, sample_every: 
         gc.collect()
         gc.freeze()
         for state in states:
+            if idle_gap_s > 0.0:
+                time.sleep(idle_gap_s)
             c0 = time.thread_time_ns()
             t0 = time.perf_counter()
             out = controller.tick(state)
@@ -135,25 +140,36 @@ def process_cpu_ms(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) * 1e3 / os.sysconf("SC_CLK_TCK")
 
 
-def ros_run(ticks: int, pin: bool = True) -> dict:
+def ros_run(ticks: int, pin: bool = True, composed: bool = False) -> dict:
     """bridge + controller executables in lock-step; this process publishes the plan and reads
-    the controller's diagnostics. ``pin``: bridge on CPU 0, controller on CPU 1."""
+    the controller's diagnostics. ``pin``: bridge on CPU 0, controller on CPU 1; ``composed``:
+    both nodes in one `sim_graph` process instead (not pinned)."""
     from climb_core.ros_env import apply_local_dds_env, local_dds_env
 
     env = local_dds_env()
     apply_local_dds_env()
     pin = pin and len(os.sched_getaffinity(0)) >= 2
-    bridge = subprocess.Popen(
-        [sys.executable, "-m", "sim_bridge.node", "--ros-args", "--params-file",
-         str(ROOT / "config" / "nodes" / "sim_bridge.yaml"), "-p", f"max_ticks:={ticks}",
-         "-p", "initial_posture:=ladder_4_contacts", "-p", "execution:=lockstep"]
-        + (["-p", "cpu_affinity:=[0]"] if pin else []),
-        env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    controller = subprocess.Popen(
-        [sys.executable, "-m", "controller_node.node", "--ros-args", "--params-file",
-         str(ROOT / "config" / "nodes" / "controller.yaml"), "-p", "initial_stance:=ladder_4_contacts"]
-        + (["-p", "cpu_affinity:=[1]"] if pin else []),
-        env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    if composed:  # both nodes in one process (climb_coordinator.sim_graph), one executor
+        bridge = controller = subprocess.Popen(
+            [sys.executable, "-m", "climb_coordinator.sim_graph", "--ros-args",
+             "--params-file", str(ROOT / "config" / "nodes" / "sim_bridge.yaml"),
+             "--params-file", str(ROOT / "config" / "nodes" / "controller.yaml"), "-p", f"max_ticks:={ticks}",
+             "-p", "initial_posture:=ladder_4_contacts", "-p", "initial_stance:=ladder_4_contacts",
+             "-p", "execution:=lockstep"],
+            env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        pin = False
+    else:
+        bridge = subprocess.Popen(
+            [sys.executable, "-m", "sim_bridge.node", "--ros-args", "--params-file",
+             str(ROOT / "config" / "nodes" / "sim_bridge.yaml"), "-p", f"max_ticks:={ticks}",
+             "-p", "initial_posture:=ladder_4_contacts", "-p", "execution:=lockstep"]
+            + (["-p", "cpu_affinity:=[0]"] if pin else []),
+            env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        controller = subprocess.Popen(
+            [sys.executable, "-m", "controller_node.node", "--ros-args", "--params-file",
+             str(ROOT / "config" / "nodes" / "controller.yaml"), "-p", "initial_stance:=ladder_4_contacts"]
+            + (["-p", "cpu_affinity:=[1]"] if pin else []),
+            env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     import rclpy
     from climb_msgs.msg import ControllerState, WholeBodyPlan
     from diagnostic_msgs.msg import DiagnosticArray
@@ -231,7 +247,7 @@ def ros_run(ticks: int, pin: bool = True) -> dict:
         window = {"wall_s": round(w1 - w0, 3), "realtime_factor": round((s1 - s0) * 1e-9 / (w1 - w0), 3),
                   "bridge_cpu_per_tick_ms": round((b1 - b0) / (n1 - n0), 3),
                   "controller_cpu_per_tick_ms": round((c1 - c0) / (n1 - n0), 3), "window_ticks": n1 - n0}
-    return {"pinned": pin, "ticks": int(rec["diag"].get("ticks", 0)),
+    return {"pinned": pin, "composed": composed, "ticks": int(rec["diag"].get("ticks", 0)),
             "final_fsm_state": rec["diag"].get("fsm_state", ""),
             "state_to_command_ms": {"p50": d.get("latency_p50_ms"), "p99": d.get("latency_p99_ms"),
                                     "max": d.get("latency_max_ms")},
@@ -267,13 +283,19 @@ def replay(path: str) -> dict:
 
 
 def ros_runs(args, result: dict) -> None:
-    """The ROS run(s) into ``result``: ros_lockstep (pinned unless --ros-pin off), and
-    ros_lockstep_unpinned with --ros-pin both."""
-    for key, pin in {"on": [("ros_lockstep", True)], "off": [("ros_lockstep", False)],
-                     "both": [("ros_lockstep", True), ("ros_lockstep_unpinned", False)]}[args.ros_pin]:
-        ros = ros_run(args.ros_ticks, pin)
+    """The ROS run(s) into ``result``: ros_lockstep (pinned unless --ros-pin off),
+    ros_lockstep_unpinned with --ros-pin both, ros_lockstep_composed (both nodes in one
+    `sim_graph` process) with --ros-composed."""
+    runs = [(key, pin, False) for key, pin in {
+        "on": [("ros_lockstep", True)], "off": [("ros_lockstep", False)],
+        "both": [("ros_lockstep", True), ("ros_lockstep_unpinned", False)]}[args.ros_pin]]
+    if args.ros_composed:
+        runs.append(("ros_lockstep_composed", False, True))
+    for key, pin, composed in runs:
+        ros = ros_run(args.ros_ticks, pin, composed)
         result[key] = ros
-        print(f"ROS lock-step{'' if pin else ' (unpinned)'}: {ros}", flush=True)
+        label = " (one process)" if composed else ("" if pin else " (unpinned)")
+        print(f"ROS lock-step{label}: {ros}", flush=True)
     ros = result["ros_lockstep"]
     p99 = ros["state_to_command_ms"]["p99"]
     result["node_p99_within_target"] = p99 is not None and p99 <= TARGET_NODE_P99_MS
@@ -288,6 +310,10 @@ def main(argv=None) -> int:
     parser.add_argument("--ros-only", action="store_true", help="only the ROS run (no in-process timing)")
     parser.add_argument("--ros-pin", choices=("on", "off", "both"), default="on",
                         help="pin the bridge to CPU 0 and the controller to CPU 1 (both: one run each way)")
+    parser.add_argument("--idle-gap-ms", type=float, default=4.0,
+                        help="also time the transfer ticks with this idle sleep before each (0: skip)")
+    parser.add_argument("--ros-composed", action="store_true",
+                        help="also run both nodes composed in one process (the sim_graph executable)")
     parser.add_argument("--replay", help="re-solve a saved failing QP (.npz) and report")
     args = parser.parse_args(argv)
     if args.replay:
@@ -319,6 +345,14 @@ def main(argv=None) -> int:
         print(f"{scenario:9s} recorded {len(states)} states, timed {len(tick_ms)} ticks "
               f"({time.perf_counter() - t0:.1f} s): tick {stats(tick_ms)}  cpu {stats(cpu_ms)}  qp {stats(qp_ms)}",
               flush=True)
+        if scenario == "transfer" and args.idle_gap_ms > 0:  # as the node sees it: ticks after an idle wait
+            gap_ms, gap_cpu_ms = time_controller(states, stance, plan, robot, env, min(args.ticks, 3 * len(states)),
+                                                 idle_gap_s=args.idle_gap_ms * 1e-3)[:2]
+            result["idle_gap_ms"] = args.idle_gap_ms
+            result["inprocess_transfer_after_idle_gap_tick_ms"] = stats(gap_ms)
+            result["inprocess_transfer_after_idle_gap_tick_cpu_ms"] = stats(gap_cpu_ms)
+            print(f"transfer after a {args.idle_gap_ms} ms idle gap: tick {stats(gap_ms)}  cpu {stats(gap_cpu_ms)}",
+                  flush=True)
     base = baseline(all_problems)
     result["qp_sample_count"] = len(all_problems)
     for name, s in base.items():

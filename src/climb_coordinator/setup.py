@@ -14,5 +14,5 @@ setup(
     zip_safe=True,
     description="Climb orchestration: plan, execute in the simulator, record.",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={"console_scripts": ["sim_graph = climb_coordinator.sim_graph:main"]},
 )

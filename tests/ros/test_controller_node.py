@@ -59,7 +59,11 @@ def test_controller_node_runs_a_hand_transfer_in_lockstep_with_the_bridge(tmp_pa
     assert bridge.returncode == 0, b_out.decode()[-3000:]
     assert controller.returncode == 0, c_out.decode()[-3000:]
     assert f"pinned to CPUs [{cpus[-1]}]" in c_out.decode() and f"pinned to CPUs [{cpus[0]}]" in b_out.decode()
-    r = json.loads(out.read_text())
+    check_hand_transfer_run(json.loads(out.read_text()))
+
+
+def check_hand_transfer_run(r: dict) -> None:
+    """The observer's record of a lock-step hand-transfer run (also used by test_sim_graph.py)."""
     # lifecycle: nothing commanded before activation
     assert r["lifecycle"] == ["unconfigured", "inactive", "active"]
     assert r["commands_while_inactive"] == 0
