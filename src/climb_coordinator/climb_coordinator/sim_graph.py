@@ -30,7 +30,7 @@ from climb_core.ros_env import apply_local_dds_env
 
 
 def main(args: list[str] | None = None) -> int:
-    from controller_node.node import ControllerNode, _apply_nice
+    from controller_node.node import ControllerNode, apply_nice
     from sim_bridge.node import SimBridgeNode, make_executor
 
     apply_local_dds_env()
@@ -40,7 +40,7 @@ def main(args: list[str] | None = None) -> int:
     try:
         bridge = SimBridgeNode()
         controller = ControllerNode()
-        _apply_nice(controller)
+        apply_nice(controller)
         if controller.get_parameter("autostart").value:
             controller.trigger_configure()
             controller.trigger_activate()

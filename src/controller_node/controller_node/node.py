@@ -398,7 +398,8 @@ class ControllerNode(LifecycleNode):
         self.pub_diag.publish(msg)
 
 
-def _apply_nice(node: ControllerNode) -> None:
+def apply_nice(node: ControllerNode) -> None:
+    """The node's ``nice`` parameter applied to the process (also used by the composed sim_graph)."""
     increment = int(node.get_parameter("nice").value)
     if increment == 0:
         return
@@ -436,7 +437,7 @@ def main(args: list[str] | None = None) -> int:
     code = 0
     try:
         node = ControllerNode()
-        _apply_nice(node)
+        apply_nice(node)
         if node.get_parameter("autostart").value:
             node.trigger_configure()
             node.trigger_activate()
