@@ -219,7 +219,6 @@ def test_bridge_node_publishes_the_simulated_state_byte_exact():
         assert to_ns(deserialize_message(node.pub_clock.sent[-1], Clock).clock) == state.stamp_ns
     finally:
         if node is not None:
-            node.backend.close()
             node.destroy_node()
         rclpy.try_shutdown()
 

@@ -63,7 +63,6 @@ def main(args: list[str] | None = None) -> int:
         code = 2
     finally:
         if bridge is not None:
-            bridge.backend.close()
             bridge.destroy_node()
         if controller is not None:
             controller.destroy_node()

@@ -222,9 +222,7 @@ class SimBridge:
                    + (f"; tripped: {tripped}" if tripped else ""),
                    sim_time_s=f"{self.stamp_ns * 1e-9:.3f}", ticks=self.ticks, rejected=self.rejected,
                    stale=self.stale, lost_ticks=self.lost_ticks, watchdog_ticks=self.watchdog_ticks,
-                   step_p50_ms=f"{stats['p50_ms']:.3f}", step_p99_ms=f"{stats['p99_ms']:.3f}",
-                   step_max_ms=f"{stats['max_ms']:.3f}", tripped=tripped,
-                   fell=bool(state.fell) if state is not None else False, **self._lockstep_values())
+                   tripped=tripped, fell=bool(state.fell) if state is not None else False, **self._timing_values())
         # Ongoing faults are repeated with every summary (diagnostic_updater convention), so a
         # subscriber that joins late still sees them, not only the edge that raised them.
         if self.watchdog_active:
@@ -233,10 +231,11 @@ class SimBridge:
         if self.controller_lost:
             self._diag(ERROR, "controller", "controller lost: damping every joint", lost_ticks=self.lost_ticks)
 
-    def _lockstep_values(self) -> dict[str, str]:
+    def _timing_values(self) -> dict[str, str]:
+        """step_{p50,p99,max}_ms always; publish_* and wait_* once the node reported them."""
         out = {}
-        for name, times in (("publish", self._publish_times), ("wait", self._wait_times)):
-            if times:
+        for name, times in (("step", self._step_times), ("publish", self._publish_times), ("wait", self._wait_times)):
+            if times or name == "step":
                 out.update({f"{name}_{k}": f"{v:.3f}" for k, v in self._time_stats(times).items()})
         return out
 

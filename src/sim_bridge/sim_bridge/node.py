@@ -101,6 +101,11 @@ class SimBridgeNode(Node):
         self.get_logger().info(f"{p.execution} bridge: {self.backend.robot.config.name} on "
                                f"{self.backend.scenario.name or 'ladder'}, control period {p.physics.control_period_s} s")
 
+    def destroy_node(self) -> None:
+        """Disconnects the simulator too (every owner of the node: the executable, sim_graph)."""
+        self.backend.close()
+        super().destroy_node()
+
     # -- parameters -----------------------------------------------------------------------------
     def _declare_params(self) -> BridgeParams:
         defaults = flatten(load_bridge_params())
@@ -361,7 +366,6 @@ def main(args: list[str] | None = None) -> int:
         code = 2
     finally:
         if node is not None:
-            node.backend.close()
             node.destroy_node()
         rclpy.try_shutdown()
     return code
