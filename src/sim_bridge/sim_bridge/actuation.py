@@ -44,6 +44,8 @@ class ActuatorBank:
         self.motors = DcMotorBank(self.motor_params, self.params.overcurrent_trip_delay_s)
         self._regulated_cap = np.minimum(self.effort_limits,
                                          self.motors.torque_from_current(self.motor_params.current_limit))
+        self._regulated_floor = -self._regulated_cap
+        self._modes_key: tuple[str, bytes] | None = None  # modes of the command the masks below belong to
         self.reset()
 
     @property
@@ -58,6 +60,10 @@ class ActuatorBank:
     def set_command(self, command: ActuatorCommand) -> None:
         self.command = command
         modes = command.modes
+        modes_key = (modes.dtype.str, modes.tobytes())
+        if modes_key == self._modes_key:  # a controller sends the same modes tick after tick
+            return
+        self._modes_key = modes_key
         self._torque = (modes == TORQUE).astype(float)
         self._position = (modes == POSITION).astype(float) * (0.0 if self.implicit_position else 1.0)
         self._damping = (modes == DAMPING).astype(float)
@@ -75,7 +81,7 @@ class ActuatorBank:
                + self._position * (p.position_kp * (values - q) - p.position_kd * qdot)
                - self._damping * (p.damping_gain * qdot))
         # torque modes: current-regulated driver, held at min(effort limit, current limit)
-        tau = np.clip(tau, -self._regulated_cap, self._regulated_cap)
+        tau = np.clip(tau, self._regulated_floor, self._regulated_cap)
         current = self.motors.current_from_torque(tau)
         if self._any_pwm:  # PWM: voltage mode through the motor model, protected by the over-current trip
             pwm = self._pwm
@@ -93,7 +99,11 @@ class ActuatorBank:
         state, for every physics step from ``time`` [s] on until the command changes: no joint
         depends on the joint state (no PWM, DAMPING or explicit POSITION) and every driver is
         powered (a trip can only happen in PWM, and power never goes away by itself)."""
-        return self._state_independent and bool(np.all(self.motors.powered(time)))
+        return self._state_independent and self.all_powered(time)
+
+    def all_powered(self, time: float) -> bool:
+        """Every driver delivers power at ``time`` [s] (= not tripped(time).any(), cheaper)."""
+        return bool(time >= self.motors.power_back_at.max())
 
     def position_force_limits(self) -> np.ndarray:
         """(n,) [N m] torque cap of a position servo: effort limit and current limit."""

@@ -13,6 +13,7 @@ back once they no longer overlap after release.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -35,6 +36,7 @@ class Grasp:
     constraint: int  # PyBullet constraint id
     anchor_in_body: np.ndarray  # (3,) [m] the anchor point in the surface body's frame
     distance_at_latch: float  # [m] grasp centre to axis when it latched
+    anchor_in_world: np.ndarray | None = None  # (3,) [m] cache of anchor_world() (None: to compute)
 
 
 @dataclass
@@ -130,24 +132,37 @@ class GraspManager:
 
     def surface_moved(self, name: str, offset: np.ndarray) -> None:
         """A rung / rail was moved: its anchors are in its body frame and follow it."""
+        for grasp in self.latched.values():
+            if grasp.surface == name:
+                grasp.anchor_in_world = None
 
     def anchor_world(self, grasp: Grasp) -> np.ndarray:
-        b = self.backend
-        pos, orn = b.p.getBasePositionAndOrientation(grasp.body, physicsClientId=b.client)
-        return frames.pose_matrix(pos, orn)[:3, :3] @ grasp.anchor_in_body + np.asarray(pos)
+        """(3,) [m] the grasp's anchor in the world (read-only: cached, the rungs and rails are
+        static bodies that only move through surface_moved())."""
+        if grasp.anchor_in_world is None:
+            b = self.backend
+            pos, orn = b.p.getBasePositionAndOrientation(grasp.body, physicsClientId=b.client)
+            grasp.anchor_in_world = frames.pose_matrix(pos, orn)[:3, :3] @ grasp.anchor_in_body + np.asarray(pos)
+        return grasp.anchor_in_world
 
     def slide(self, hand: str) -> float:
         """[m] distance between the hand's grasp centre and its anchor."""
-        grasp = self.latched[hand]
-        return float(np.linalg.norm(self.backend.surface_pose(hand)[:3, 3] - self.anchor_world(grasp)))
+        return self._slide(self.latched[hand], self.backend.surface_pose(hand))
+
+    def _slide(self, grasp: Grasp, T_world_surface: np.ndarray) -> float:
+        """[m] slide() given the hand's current T_world_surface."""
+        d = T_world_surface[:3, 3] - self.anchor_world(grasp)
+        return math.sqrt(d.dot(d))  # = np.linalg.norm(d), without its argument checks
 
     def update(self) -> None:
         """Once per tick: slipped grasps are lost; released hands get their collisions back."""
         b = self.backend
         capture = b.robot.config.capture_range
-        for hand in list(self.latched):
-            slide = self.slide(hand)
-            if slide > capture + self.latched[hand].distance_at_latch:
+        hands = list(self.latched)
+        for hand, T_world_surface in zip(hands, b.surface_poses(hands) if hands else ()):
+            grasp = self.latched[hand]
+            slide = self._slide(grasp, T_world_surface)
+            if slide > capture + grasp.distance_at_latch:
                 self.release(hand, f"slipped {slide * 100:.1f} cm (grip strength {b.grip_strength:.0f} N exceeded)")
         still = []
         for hand, body in self._filtered:

@@ -38,6 +38,11 @@ def _import_pybullet():
     return pybullet
 
 
+_YZX = np.array([1, 2, 0])  # cyclic shifts of a 3-vector's components (cross products)
+_ZXY = np.array([2, 0, 1])
+_IDENTITY_4 = np.eye(4)  # copied: cheaper than np.eye(4)
+
+
 @dataclass
 class _Ball:
     body: int
@@ -74,7 +79,8 @@ class PyBulletBackend(Backend):
         self._imu_acc = np.zeros(3)
         self.physics_time_s = 0.0  # [s] wall time of the last tick's stepSimulation calls
         self._kinematics = None  # base kinematics of the current physics state
-        self._contacts = None  # contact points of the robot at the current physics state
+        self._contact_scan = None  # _scan_contacts() of the current physics state
+        self._joint_states = None  # observe()'s getJointStates rows of the current physics state
 
     # ============================================================================ world building
     def _connect(self) -> None:
@@ -224,6 +230,7 @@ class PyBulletBackend(Backend):
         self.actuators = ActuatorBank(self.joint_names, robot.effort_limits(), mp, self.params.actuation,
                                       implicit_position=True)
         self._position_mask = np.zeros(len(self._act), dtype=bool)
+        self._any_position = False  # = self._position_mask.any()
         self._torque_sel = np.arange(len(self._act))
         self._torque_idx = list(self._act) + self._fingers
         self._filter_self_collisions(q_ref)
@@ -239,20 +246,27 @@ class PyBulletBackend(Backend):
         n_f = len(self._fingers)
         self.finger_kp = np.zeros(n_f)  # [N m/rad]
         self.finger_kd = np.zeros(n_f)  # [N m s/rad]
-        self.finger_goal = self.finger_open.copy()  # [rad]
-        if not n_f:
-            return
-        p, cid, body = self.p, self.client, self.body
-        movable = [j for j in range(p.getNumJoints(body, physicsClientId=cid))
-                   if p.getJointInfo(body, j, physicsClientId=cid)[2] != p.JOINT_FIXED]
-        q = [st[0] for st in p.getJointStates(body, movable, physicsClientId=cid)]
-        M = np.asarray(p.calculateMassMatrix(body, q, physicsClientId=cid))
-        base_dofs = M.shape[0] - len(movable)  # 6 for a floating base
-        m_inv = np.diag(np.linalg.inv(M))
-        apparent = np.array([1.0 / m_inv[base_dofs + movable.index(j)] for j in self._fingers])  # [kg m^2]
-        a = self.params.actuation
-        self.finger_kp = apparent * a.finger_bandwidth ** 2
-        self.finger_kd = 2.0 * a.finger_damping_ratio * apparent * a.finger_bandwidth
+        if n_f:
+            p, cid, body = self.p, self.client, self.body
+            movable = [j for j in range(p.getNumJoints(body, physicsClientId=cid))
+                       if p.getJointInfo(body, j, physicsClientId=cid)[2] != p.JOINT_FIXED]
+            q = [st[0] for st in p.getJointStates(body, movable, physicsClientId=cid)]
+            M = np.asarray(p.calculateMassMatrix(body, q, physicsClientId=cid))
+            base_dofs = M.shape[0] - len(movable)  # 6 for a floating base
+            m_inv = np.diag(np.linalg.inv(M))
+            apparent = np.array([1.0 / m_inv[base_dofs + movable.index(j)] for j in self._fingers])  # [kg m^2]
+            a = self.params.actuation
+            self.finger_kp = apparent * a.finger_bandwidth ** 2
+            self.finger_kd = 2.0 * a.finger_damping_ratio * apparent * a.finger_bandwidth
+        self._set_finger_goal()
+
+    def _set_finger_goal(self) -> None:
+        """Finger servo goals [rad] from the targets, and the servo's per-finger constants as Python
+        floats (goal, kp, kd, -effort, effort): on 14 fingers, float arithmetic beats numpy's
+        per-call overhead."""
+        self.finger_goal = self.finger_open + self.finger_target * (self.finger_closed - self.finger_open)
+        self._finger_servo = list(zip(self.finger_goal.tolist(), self.finger_kp.tolist(), self.finger_kd.tolist(),
+                                      (-self.finger_effort).tolist(), self.finger_effort.tolist()))
 
     def _replace_ground_plane(self) -> None:
         """PyBullet's GEOM_PLANE has an infinite bounding box: every robot link overlaps it in the
@@ -383,6 +397,9 @@ class PyBulletBackend(Backend):
         p, cid, body = self.p, self.client, self.body
         cmd = self.actuators.command
         position = cmd.modes == POSITION
+        any_position = bool(position.any())
+        if not (any_position or self._any_position):
+            return  # torque-driven joints only, as in the last tick: nothing to change
         leaving = self._position_mask & ~position
         if leaving.any():
             idx = [self._act[j] for j in np.flatnonzero(leaving)]
@@ -399,20 +416,18 @@ class PyBulletBackend(Backend):
             self._torque_sel = np.flatnonzero(~position)
             self._torque_idx = [self._act[j] for j in self._torque_sel] + self._fingers
         self._position_mask = position
-        self.finger_goal = self.finger_open + self.finger_target * (self.finger_closed - self.finger_open)
+        self._any_position = any_position
 
     def _advance(self) -> None:
         p, cid, body = self.p, self.client, self.body
         ph = self.params.physics
         dt = ph.dt_s
+        last = ph.substeps - 1
         n_act, n_f = len(self._act), len(self._fingers)
         self._configure_motors()
         actuators = self.actuators
         torque_sel, torque_idx = self._torque_sel, self._torque_idx
-        finger_goal, finger_kp, finger_kd = self.finger_goal, self.finger_kp, self.finger_kd
-        finger_cap = self.finger_effort
-        forces = np.zeros(len(torque_idx))  # [N m] whole-body joints in torque modes, then the fingers
-        n_torque = len(torque_sel)
+        finger_servo = self._finger_servo
         # TORQUE-only commands on powered drivers: the whole-body torques are the same for every
         # physics step of the tick (computed once, equal to computing them each step); only the
         # finger servo needs the joint state every step
@@ -421,16 +436,19 @@ class PyBulletBackend(Backend):
         physics = 0.0
         perf_counter = time.perf_counter
         for k in range(ph.substeps):
-            states = p.getJointStates(body, read, physicsClientId=cid)
+            # the first step starts from the state observe() read (its rows: actuated joints first,
+            # fingers last, as in ``read``)
+            states = self._joint_states if k == 0 and self._joint_states is not None else \
+                p.getJointStates(body, read, physicsClientId=cid)
             if not constant or k == 0:
                 if constant:
                     q = np.zeros(n_act)
                     v = q
                 else:
-                    q = np.array([st[0] for st in states[:n_act]])
-                    v = np.array([st[1] for st in states[:n_act]])
+                    positions, velocities, _, _ = zip(*states[:n_act])
+                    q, v = np.array(positions), np.array(velocities)
                 tau, trips = actuators.torques(q, v, self.time + k * dt, dt)
-                forces[:n_torque] = tau[torque_sel]
+                forces = tau[torque_sel].tolist()  # [N m] whole-body joints in torque modes
                 for trip in trips:
                     name = self.joint_names[trip.joint]
                     self._emit("overcurrent", f"{name}: over-current {trip.current:.1f} A > "
@@ -438,15 +456,18 @@ class PyBulletBackend(Backend):
                                f"t = {trip.until:.3f} s", 2, joint=name, current_A=f"{trip.current:.2f}",
                                until_s=f"{trip.until:.3f}")
             if n_f:
-                finger_states = states[-n_f:]
-                qf = np.array([st[0] for st in finger_states])
-                vf = np.array([st[1] for st in finger_states])
-                tau_f = finger_kp * (finger_goal - qf) - finger_kd * vf
-                forces[n_torque:] = np.clip(tau_f, -finger_cap, finger_cap)
+                # finger servo: kp (goal - q) - kd qdot [N m], clipped to the effort
+                finger_forces = []
+                for state, (goal, kp, kd, low, high) in zip(states[-n_f:], finger_servo):
+                    tau_f = kp * (goal - state[0]) - kd * state[1]
+                    finger_forces.append(low if tau_f < low else high if tau_f > high else tau_f)
+                step_forces = forces + finger_forces
+            else:
+                step_forces = forces
             if torque_idx:
-                p.setJointMotorControlArray(body, torque_idx, p.TORQUE_CONTROL, forces=forces.tolist(),
+                p.setJointMotorControlArray(body, torque_idx, p.TORQUE_CONTROL, forces=step_forces,
                                             physicsClientId=cid)
-            if k == ph.substeps - 1:
+            if k == last:
                 self._imu_velocity_prev = self._base_origin_velocity()
             t0 = perf_counter()
             p.stepSimulation(physicsClientId=cid)
@@ -473,12 +494,14 @@ class PyBulletBackend(Backend):
         lin, ang = p.getBaseVelocity(body, physicsClientId=cid)
         R_world_inertial = frames.quat_to_matrix(orn)
         com = np.array(pos)
-        T_world_base = np.eye(4)  # = T_world_inertial @ T_inertial_base
+        origin = com + R_world_inertial @ self._t_inertial_base
+        T_world_base = _IDENTITY_4.copy()  # = T_world_inertial @ T_inertial_base
         T_world_base[:3, :3] = R_world_inertial @ self._R_inertial_base
-        T_world_base[:3, 3] = com + R_world_inertial @ self._t_inertial_base
-        ang = np.array(ang)
-        v_origin = frames.base_twist_from_com(T_world_base, com, np.array(lin), ang)
-        return T_world_base, com, v_origin, ang
+        T_world_base[:3, 3] = origin
+        ox, oy, oz = origin.tolist()
+        com_to_origin = (ox - pos[0], oy - pos[1], oz - pos[2])  # [m] world frame
+        v_origin = frames.point_velocity(lin, ang, com_to_origin)  # = frames.base_twist_from_com
+        return T_world_base, com, v_origin, np.array(ang)
 
     def _base_origin_velocity(self) -> np.ndarray:
         """(3,) [m/s] world velocity of the root frame origin (= _base_kinematics()[2], fewer steps)."""
@@ -488,18 +511,40 @@ class PyBulletBackend(Backend):
         _, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
         lin, ang = p.getBaseVelocity(body, physicsClientId=cid)
         r = frames.quat_to_matrix(orn) @ self._t_inertial_base  # COM -> root origin, world frame
-        return np.array(lin) + frames.cross(ang, r)
+        return frames.point_velocity(lin, ang, r.tolist())
 
     def _invalidate(self) -> None:
         """The physics state changed (a step or a teleport): drop the cached readings."""
         self._kinematics = None
-        self._contacts = None
+        self._contact_scan = None
+        self._joint_states = None
 
-    def _robot_contacts(self) -> tuple:
-        """getContactPoints rows with the robot as body A (last physics step), cached."""
-        if self._contacts is None:
-            self._contacts = self.p.getContactPoints(bodyA=self.body, physicsClientId=self.client)
-        return self._contacts
+    def _scan_contacts(self) -> tuple[list[list[float]], tuple | None]:
+        """One pass over the robot's contact points (last physics step), cached: per limb (LIMBS
+        order) the total force [N] the environment applies on its links (world frame), and the
+        first contact of a link that must not touch the ground pressing it harder than the fall
+        limit (a getContactPoints row; None if none)."""
+        if self._contact_scan is None:
+            total = [[0.0, 0.0, 0.0] for _ in LIMBS]
+            env, limb_of = self._env_body_set, self._env_limb_links
+            ground, allowed, limit = self.ground_body, self._fall_allowed, self._fall_ground_force
+            on_ground = None
+            for c in self.p.getContactPoints(bodyA=self.body, physicsClientId=self.client):
+                if on_ground is None and c[2] == ground and c[3] not in allowed and c[9] > limit:
+                    on_ground = c
+                if c[2] not in env:
+                    continue
+                k = limb_of.get(c[3])
+                if k is None:
+                    continue
+                # force on body A: normal along contactNormalOnB (B -> A) plus the two friction directions
+                fn, n, f1, d1, f2, d2 = c[9], c[7], c[10], c[11], c[12], c[13]
+                acc = total[k]
+                acc[0] += fn * n[0] + f1 * d1[0] + f2 * d2[0]
+                acc[1] += fn * n[1] + f1 * d1[1] + f2 * d2[1]
+                acc[2] += fn * n[2] + f1 * d1[2] + f2 * d2[2]
+            self._contact_scan = (total, on_ground)
+        return self._contact_scan
 
     def link_pose(self, link: int) -> np.ndarray:
         """T_world_link (URDF link frame) of a PyBullet link index (-1 = root)."""
@@ -519,31 +564,46 @@ class PyBulletBackend(Backend):
         """T_world_surface of a limb's contact surface (sole centre / grasp centre)."""
         return self.link_pose(self.limb_link[limb]) @ self.T_link_surface[limb]
 
+    def surface_poses(self, limbs: list[str]) -> list[np.ndarray]:
+        """surface_pose() of several limbs, their links read in one PyBullet call."""
+        links = [self.limb_link[limb] for limb in limbs]
+        if len(links) < 2 or -1 in links:
+            return [self.surface_pose(limb) for limb in limbs]
+        states = self.p.getLinkStates(self.body, links, computeForwardKinematics=1, physicsClientId=self.client)
+        return [frames.pose_matrix(state[4], state[5]) @ self.T_link_surface[limb]
+                for state, limb in zip(states, limbs)]
+
     def _prepare_sensing(self) -> None:
         """Constant data of observe(), computed once per robot load."""
         T_inertial_base = frames.inverse(self.T_link_inertial[-1])
         self._R_inertial_base = T_inertial_base[:3, :3].copy()
         self._t_inertial_base = T_inertial_base[:3, 3].copy()
-        n_act = len(self._act)
-        self._read = self._act + [self.ft_joints[s] for s in self._ft_order]  # what observe() reads
-        self._ft_rows = list(range(n_act, n_act + len(self._ft_order)))
+        # what observe() reads: the fingers too, the next tick's first physics step needs them
+        self._read = self._act + [self.ft_joints[s] for s in self._ft_order] + self._fingers
+        self._ft_rows = slice(len(self._act), len(self._act) + len(self._ft_order))  # the F/T joints in it
         T_ft = [self.T_link_inertial[self.ft_joints[s]] for s in self._ft_order]
         self._ft_R = np.array([T[:3, :3] for T in T_ft]).reshape(-1, 3, 3)  # child inertial -> link frame
-        self._ft_t = np.array([T[:3, 3] for T in T_ft]).reshape(-1, 3)  # [m] child COM in the link frame
+        com_in_link = np.array([T[:3, 3] for T in T_ft]).reshape(-1, 3)  # [m] child COM in the link frame
+        # its components cyclically shifted, for r x f = r_yzx f_zxy - r_zxy f_yzx on every sensor at once
+        self._ft_t_yzx = com_in_link.take(_YZX, axis=1)
+        self._ft_t_zxy = com_in_link.take(_ZXY, axis=1)
         self._env_limb_links = {link: LIMBS.index(limb) for link, limb in self.link_limb.items() if limb in LIMBS}
         self._fall_allowed = set().union(*(self.limb_links[limb] for limb in LIMBS if limb in self.limb_links))
+        self._fall_height = self.params.falls.base_height_fraction * self.robot.config.base_height  # [m]
+        self._fall_ground_force = self.params.falls.ground_contact_force  # [N]
         self._link_names = {idx: name for name, idx in self.link_index.items()}
         self._gravity_in_world = np.array([0.0, 0.0, -self.params.physics.gravity])
         self._finger_positions = {hand: 0.0 for hand in self.hand_fingers}
-        self._contacts = None
+        self._invalidate()
 
     def observe(self) -> SimState:
         p, cid, body = self.p, self.client, self.body
         s = self.params.sensors
         n_act = len(self._act)
-        states = p.getJointStates(body, self._read, physicsClientId=cid)
-        q = np.array([st[0] for st in states[:n_act]])
-        v = np.array([st[1] for st in states[:n_act]])
+        states = self._joint_states = p.getJointStates(body, self._read, physicsClientId=cid)
+        positions, velocities, reactions, applied = zip(*states)
+        q = np.array(positions[:n_act])
+        v = np.array(velocities[:n_act])
         T_world_base, com, v_origin, omega = self._base_kinematics()
         R = T_world_base[:3, :3]
         quaternion = frames.matrix_to_quat(R)
@@ -554,13 +614,11 @@ class PyBulletBackend(Backend):
         if self._ft_order:
             # parent-on-child wrench in the child's inertial frame (torque about its COM) -> child
             # link frame, torque about its origin; negated: the distal side on the proximal side
-            reaction = np.array([states[row][2] for row in self._ft_rows])  # (k, 6)
+            reaction = np.array(reactions[self._ft_rows])  # (k, 6)
             force = np.einsum("kij,kj->ki", self._ft_R, reaction[:, :3])
-            r = self._ft_t  # (k, 3) COM in the link frame: torque about the origin += r x force
             torque = np.einsum("kij,kj->ki", self._ft_R, reaction[:, 3:])
-            torque[:, 0] += r[:, 1] * force[:, 2] - r[:, 2] * force[:, 1]
-            torque[:, 1] += r[:, 2] * force[:, 0] - r[:, 0] * force[:, 2]
-            torque[:, 2] += r[:, 0] * force[:, 1] - r[:, 1] * force[:, 0]
+            # torque about the link origin += r x force, r the COM in the link frame
+            torque += self._ft_t_yzx * force.take(_ZXY, axis=1) - self._ft_t_zxy * force.take(_YZX, axis=1)
             force, torque = -force, -torque
             for k, sensor in enumerate(self._ft_order):
                 f_k, t_k = force[k], torque[k]
@@ -579,15 +637,16 @@ class PyBulletBackend(Backend):
             q_meas = q + self.rng.normal(0.0, s.joint_position_noise_std, n_act)
         if s.joint_velocity_noise_std:
             v_meas = v + self.rng.normal(0.0, s.joint_velocity_noise_std, n_act)
-        tau = self.actuators.tau.copy()
-        if self._position_mask.any():
+        actuators = self.actuators
+        tau = actuators.tau.copy()
+        if self._any_position:
             sel = np.flatnonzero(self._position_mask)
-            tau[sel] = [states[j][3] for j in sel]
-        tripped = self.actuators.tripped(self.time)
+            tau[sel] = [applied[j] for j in sel]
+        tripped = () if actuators.all_powered(self.time) else \
+            tuple(nm for nm, t in zip(self.joint_names, actuators.tripped(self.time)) if t)
         return SimState(
             stamp_ns=self.stamp_ns, joint_names=self.joint_names, q=q_meas, v=v_meas,
-            tau=tau, motor_current=self.actuators.motors.current.copy(),
-            tripped=tuple(nm for nm, t in zip(self.joint_names, tripped) if t) if tripped.any() else (), ft=ft,
+            tau=tau, motor_current=actuators.motors.current.copy(), tripped=tripped, ft=ft,
             imu=ImuReading(self.root_link, quaternion, gyro, accel),
             base=BaseTruth(self.root_link, T_world_base, v_origin, omega, q_pin, v_pin),
             contact_forces=self.contact_forces(), grasps=self.grasps.latched_surfaces(),
@@ -596,22 +655,8 @@ class PyBulletBackend(Backend):
 
     def contact_forces(self) -> dict[str, np.ndarray]:
         """limb -> (3,) [N] total force the environment (ground, ladder) applies on the limb's links,
-        world frame (grasp constraint forces excluded: see grasp_forces())."""
-        total = [[0.0, 0.0, 0.0] for _ in LIMBS]
-        env = self._env_body_set
-        limb_of = self._env_limb_links
-        for c in self._robot_contacts():
-            if c[2] not in env:
-                continue
-            k = limb_of.get(c[3])
-            if k is None:
-                continue
-            # force on body A: normal along contactNormalOnB (B -> A) plus the two friction directions
-            fn, n, f1, d1, f2, d2 = c[9], c[7], c[10], c[11], c[12], c[13]
-            acc = total[k]
-            acc[0] += fn * n[0] + f1 * d1[0] + f2 * d2[0]
-            acc[1] += fn * n[1] + f1 * d1[1] + f2 * d2[1]
-            acc[2] += fn * n[2] + f1 * d1[2] + f2 * d2[2]
+        world frame (grasp constraint forces excluded: see GraspManager.constraint_force())."""
+        total = self._scan_contacts()[0]
         return {limb: np.array(total[k]) for k, limb in enumerate(LIMBS)}
 
     @staticmethod
@@ -631,16 +676,14 @@ class PyBulletBackend(Backend):
         if self.fell:
             return
         T_world_base = self._base_kinematics()[0]
-        threshold = self.params.falls.base_height_fraction * self.robot.config.base_height
+        threshold = self._fall_height
         reason = ""
         if T_world_base[2, 3] < threshold:
             reason = f"base height {T_world_base[2, 3]:.3f} m < {threshold:.3f} m"
         else:
-            allowed, ground, limit = self._fall_allowed, self.ground_body, self.params.falls.ground_contact_force
-            for c in self._robot_contacts():
-                if c[2] == ground and c[3] not in allowed and c[9] > limit:
-                    reason = f"{self._link_names[c[3]]} touches the ground ({c[9]:.0f} N)"
-                    break
+            c = self._scan_contacts()[1]
+            if c is not None:
+                reason = f"{self._link_names[c[3]]} touches the ground ({c[9]:.0f} N)"
         if reason:
             self.fell, self.fall_reason = True, reason
             self._emit("fall", f"fall at t = {self.time:.3f} s: {reason}", 2, reason=reason)
@@ -658,6 +701,7 @@ class PyBulletBackend(Backend):
         idx = self.hand_fingers.get(hand, [])
         for k in idx:
             self.finger_target[k] = closed_fraction
+        self._set_finger_goal()
         if hand in self._finger_positions:
             self._finger_positions[hand] = float(np.mean(self.finger_target[idx])) if idx else 0.0
 
