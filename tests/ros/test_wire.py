@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
-from climb_msgs.msg import JointCommand
+from climb_msgs.msg import ControllerState, JointCommand
 from geometry_msgs.msg import WrenchStamped
 from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
@@ -121,6 +121,33 @@ def test_templates_write_what_rclpy_deserializes():
     t.field("values")[:] = (0.5, -0.5)
     back = deserialize_message(t.payload(), JointCommand)
     assert list(back.values) == [0.5, -0.5] and list(back.modes) == [1, 1] and back.names == ["a", "b"]
+
+
+def test_controller_state_writer_is_byte_exact():
+    """Templates per layout (strings), numbers written in place: the same message as rclpy's
+    (same length; the padding bytes rclpy leaves uninitialised may differ)."""
+    writer = cdr.ControllerStateWriter(ControllerState, serialize_message)
+    ticks = [  # an FSM change and a contact-set change between ticks, then the first layout again
+        ("transfer", "qp", 3, ("left_foot", "right_foot", "left_hand"), ("com", "posture", "right_hand"),
+         (0.012, 0.3, 0.0451), 0, 0.104, 0.71, 0),
+        ("search", "qp", 3, ("left_foot", "right_foot", "left_hand"), ("com", "posture", "right_hand"),
+         (0.002, 0.1, 0.0051), 0, 0.099, 0.65, 0),
+        ("hold", "compliance", 4, ("left_foot", "right_foot", "left_hand", "right_hand"), ("com", "posture"),
+         (1e-4, 2e-3), 1, 0.0, 1.2, 3),
+        ("transfer", "qp", 7, ("left_foot", "right_foot", "left_hand"), ("com", "posture", "right_hand"),
+         (0.5, 0.25, 0.125), 2, 0.2, 0.9, 4),
+    ]
+    for k, (fsm, mode, index, contacts, names, errors, status, solve, tick, failures) in enumerate(ticks):
+        stamp = STAMP_NS + k * 5_000_000
+        msg = ControllerState(fsm_state=fsm, mode=mode, transition_index=index, active_contacts=list(contacts),
+                              task_names=list(names), task_errors=list(errors), qp_status=status,
+                              qp_solve_time_ms=solve, tick_time_ms=tick, qp_failures=failures)
+        msg.header.stamp = Time(sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000)
+        got = writer.payload(stamp, fsm, mode, index, contacts, names, np.array(errors), status, solve, tick, failures)
+        assert len(got) == len(serialize_message(msg)), f"tick {k}"
+        back = deserialize_message(got, ControllerState)
+        assert back == msg, f"tick {k} ({fsm}): {back} != {msg}"
+    assert len(writer._layouts) == 3  # the first layout was reused
 
 
 def test_reader_rejects_other_encodings_and_truncated_bytes():

@@ -211,6 +211,7 @@ class ControllerNode(LifecycleNode):
                            values=array.array("d", bytes(8 * len(self._names))))
         self._cmd = cdr.Template(serialize_message(cmd), cdr.locate_joint_command)
         self._cmd_values = self._cmd.field("values")
+        self._state_writer = cdr.ControllerStateWriter(ControllerState, serialize_message)
         self.get_logger().info(f"configured: {p.robot} on {p.ladder}, mode {p.mode}, {p.execution}")
         # the models, geometries and messages built above live as long as the node: moved out of
         # the collector's generations, the per-tick garbage stays cheap to collect (no full
@@ -365,14 +366,10 @@ class ControllerNode(LifecycleNode):
             self._publish_diagnostics(out, stamp)
 
     def _publish_state(self, out, stamp: int) -> None:
-        s = out.status
-        msg = ControllerState(fsm_state=s.fsm_state, mode=s.mode, transition_index=int(s.transition_index),
-                              active_contacts=list(s.active_contacts), task_names=list(s.task_names),
-                              task_errors=array.array("d", s.task_errors), qp_status=_QP_STATUS[s.qp_status],
-                              qp_solve_time_ms=float(s.qp_solve_time_ms), tick_time_ms=float(s.tick_time_ms),
-                              qp_failures=int(s.qp_failures))
-        msg.header.stamp = to_time(stamp)
-        self.pub_state.publish(msg)
+        s = out.status  # serialized from a template per FSM state / contact set (msgs_py.cdr)
+        self.pub_state.publish(self._state_writer.payload(
+            stamp, s.fsm_state, s.mode, int(s.transition_index), s.active_contacts, s.task_names, s.task_errors,
+            _QP_STATUS[s.qp_status], float(s.qp_solve_time_ms), float(s.tick_time_ms), int(s.qp_failures)))
 
     def latency_stats(self) -> dict[str, float]:
         out = {}

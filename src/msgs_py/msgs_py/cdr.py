@@ -81,6 +81,14 @@ class Reader:
         self._check()
         return offset, n
 
+    def scalar(self, size: int) -> int:
+        """Offset of a primitive of ``size`` bytes (aligned), skipped."""
+        self.align(size)
+        offset = self.pos
+        self.pos += size
+        self._check()
+        return offset
+
     def doubles(self, count: int | None = None) -> tuple[int, int]:
         """float64[count] (fixed array) or float64[] (sequence, count None): (offset, count)."""
         if count is None:
@@ -277,3 +285,63 @@ def locate_joint_command(r: Reader) -> dict[str, tuple[int, int]]:
 def locate_clock(r: Reader) -> dict[str, tuple[int, int]]:
     r.stamp_ns()
     return {}
+
+
+_U8 = struct.Struct("<B")
+
+
+class ControllerStateWriter:
+    """climb_msgs/ControllerState from templates, one per layout.
+
+    Its strings (FSM state, mode, active contacts, task names) change only when the FSM or the
+    contact set does, so each distinct set is serialized once by ``serialize(msg)`` (rclpy's own
+    serialization) and reused: per tick the stamp, the transition index, the task errors, the QP
+    status and the times are written in place."""
+
+    _LIMIT = 256  # layouts kept (a run sees a few dozen)
+
+    def __init__(self, message_type, serialize) -> None:
+        self._type = message_type
+        self._serialize = serialize
+        self._layouts: dict[tuple, tuple[bytearray, dict[str, int], np.ndarray]] = {}
+
+    def payload(self, stamp_ns: int, fsm_state: str, mode: str, transition_index: int,
+                active_contacts: tuple[str, ...], task_names: tuple[str, ...], task_errors,
+                qp_status: int, qp_solve_time_ms: float, tick_time_ms: float, qp_failures: int) -> bytes:
+        key = (fsm_state, mode, tuple(active_contacts), tuple(task_names))
+        layout = self._layouts.get(key)
+        if layout is None:
+            layout = self._layouts[key] = self._layout(key)
+            if len(self._layouts) > self._LIMIT:
+                self._layouts.pop(next(iter(self._layouts)))
+        buffer, at, errors = layout
+        _STAMP.pack_into(buffer, _HEADER, stamp_ns // _NS, stamp_ns % _NS)
+        _U32.pack_into(buffer, at["transition_index"], transition_index)
+        errors[:] = task_errors
+        _U8.pack_into(buffer, at["qp_status"], qp_status)
+        _F64_PAIR.pack_into(buffer, at["qp_solve_time_ms"], qp_solve_time_ms, tick_time_ms)
+        _U32.pack_into(buffer, at["qp_failures"], qp_failures)
+        return bytes(buffer)
+
+    def _layout(self, key: tuple) -> tuple[bytearray, dict[str, int], np.ndarray]:
+        fsm_state, mode, contacts, names = key
+        msg = self._type(fsm_state=fsm_state, mode=mode, active_contacts=list(contacts), task_names=list(names))
+        msg.task_errors = [0.0] * len(names)
+        buffer = bytearray(self._serialize(msg))
+        r = Reader(bytes(buffer))
+        read_header(r)
+        r.string()
+        r.string()
+        at = {"transition_index": r.scalar(4)}
+        r.strings()
+        r.strings()
+        errors_at, n = r.doubles()
+        at["qp_status"] = r.scalar(1)
+        at["qp_solve_time_ms"] = r.scalar(8)
+        if r.scalar(8) != at["qp_solve_time_ms"] + 8:  # tick_time_ms right after: written as a pair
+            raise CdrError("ControllerState: qp_solve_time_ms and tick_time_ms are not adjacent")
+        at["qp_failures"] = r.scalar(4)
+        return buffer, at, np.frombuffer(buffer, dtype="<f8", count=n, offset=errors_at)
+
+
+_F64_PAIR = struct.Struct("<dd")
