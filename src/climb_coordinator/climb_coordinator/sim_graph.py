@@ -13,9 +13,9 @@ This is ROS 2 composition done by hand (rclpy has no component container).
 Parameters given with ``-p`` reach both nodes (each keeps the ones it declares). Why: each
 process of a two-process lock-step idles while the other works, and its next tick starts with
 cold caches (the controller's tick costs ~3x, the bridge's physics ~1.5x); on the 2-core
-development machine two pinned processes run at 0.78-0.88x real time, composed 0.88-0.99x, and
-the controller's state -> command p99 drops from 2.4 to 1.7 ms (docs/benchmarks.md,
-``scripts/bench_controller.py --ros-only --ros-composed``).
+development machine, over 10,000 ticks, two pinned processes run at 0.76-0.89x real time, composed
+0.88-1.08x, and the controller's state -> command p99 drops from 2.3-2.9 to 1.8-1.9 ms
+(docs/benchmarks.md, ``scripts/bench_controller.py --ros-only --ros-composed --ros-repeat 3``).
 """
 from __future__ import annotations
 
