@@ -152,10 +152,11 @@ def process_cpu_ms(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) * 1e3 / os.sysconf("SC_CLK_TCK")
 
 
-def ros_run(ticks: int, pin: bool = True, composed: bool = False) -> dict:
+def ros_run(ticks: int, pin: bool = True, composed: bool = False, delay: int = 0) -> dict:
     """bridge + controller executables in lock-step; this process publishes the plan and reads
     the controller's diagnostics. ``pin``: bridge on CPU 0, controller on CPU 1; ``composed``:
-    both nodes in one `sim_graph` process instead (not pinned)."""
+    both nodes in one `sim_graph` process instead (not pinned); ``delay``: the bridge's
+    lockstep.command_delay_ticks (1: the physics of a tick runs while the controller computes)."""
     from climb_core.ros_env import apply_local_dds_env, local_dds_env
 
     env = local_dds_env()
@@ -167,14 +168,15 @@ def ros_run(ticks: int, pin: bool = True, composed: bool = False) -> dict:
              "--params-file", str(ROOT / "config" / "nodes" / "sim_bridge.yaml"),
              "--params-file", str(ROOT / "config" / "nodes" / "controller.yaml"), "-p", f"max_ticks:={ticks}",
              "-p", "initial_posture:=ladder_4_contacts", "-p", "initial_stance:=ladder_4_contacts",
-             "-p", "execution:=lockstep"],
+             "-p", "execution:=lockstep", "-p", f"lockstep.command_delay_ticks:={delay}"],
             env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         pin = False
     else:
         bridge = subprocess.Popen(
             [sys.executable, "-m", "sim_bridge.node", "--ros-args", "--params-file",
              str(ROOT / "config" / "nodes" / "sim_bridge.yaml"), "-p", f"max_ticks:={ticks}",
-             "-p", "initial_posture:=ladder_4_contacts", "-p", "execution:=lockstep"]
+             "-p", "initial_posture:=ladder_4_contacts", "-p", "execution:=lockstep",
+             "-p", f"lockstep.command_delay_ticks:={delay}"]
             + (["-p", "cpu_affinity:=[0]"] if pin else []),
             env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         controller = subprocess.Popen(
@@ -259,7 +261,7 @@ def ros_run(ticks: int, pin: bool = True, composed: bool = False) -> dict:
         window = {"wall_s": round(w1 - w0, 3), "realtime_factor": round((s1 - s0) * 1e-9 / (w1 - w0), 3),
                   "bridge_cpu_per_tick_ms": round((b1 - b0) / (n1 - n0), 3),
                   "controller_cpu_per_tick_ms": round((c1 - c0) / (n1 - n0), 3), "window_ticks": n1 - n0}
-    return {"pinned": pin, "composed": composed, "ticks": int(rec["diag"].get("ticks", 0)),
+    return {"pinned": pin, "composed": composed, "command_delay_ticks": delay, "ticks": int(rec["diag"].get("ticks", 0)),
             "final_fsm_state": rec["diag"].get("fsm_state", ""),
             "state_to_command_ms": {"p50": d.get("latency_p50_ms"), "p99": d.get("latency_p99_ms"),
                                     "max": d.get("latency_max_ms")},
@@ -301,18 +303,23 @@ def ros_runs(args, result: dict) -> None:
     layouts alternating (their order reversed every round, so a drift of the machine's speed hits
     them alike); ``<key>`` is then the run of median real-time factor, ``<key>_runs`` every run's
     figures and ``<key>_summary`` the median / min / max over the runs. The targets are judged on
-    the medians."""
+    the medians. ``--ros-command-delay 1`` adds a ``_delay1`` run of each layout (the bridge's
+    one-period actuation latency: physics and controller in parallel)."""
     layouts = [(key, pin, False) for key, pin in {
         "on": [("ros_lockstep", True)], "off": [("ros_lockstep", False)],
         "both": [("ros_lockstep", True), ("ros_lockstep_unpinned", False)]}[args.ros_pin]]
     if args.ros_composed:
         layouts.append(("ros_lockstep_composed", False, True))
-    runs: dict[str, list[dict]] = {key: [] for key, _, _ in layouts}
+    layouts = [(key, pin, composed, 0) for key, pin, composed in layouts]
+    if args.ros_command_delay:
+        layouts += [(f"{key}_delay1", pin, composed, 1) for key, pin, composed, _ in layouts]
+    runs: dict[str, list[dict]] = {key: [] for key, _, _, _ in layouts}
     for round_ in range(args.ros_repeat):
-        for key, pin, composed in (layouts if round_ % 2 == 0 else layouts[::-1]):
-            ros = ros_run(args.ros_ticks, pin, composed)
+        for key, pin, composed, delay in (layouts if round_ % 2 == 0 else layouts[::-1]):
+            ros = ros_run(args.ros_ticks, pin, composed, delay)
             runs[key].append(ros)
-            label = " (one process)" if composed else ("" if pin else " (unpinned)")
+            label = (" (one process)" if composed else ("" if pin else " (unpinned)")) + \
+                (", command delay 1 tick" if delay else "")
             print(f"ROS lock-step{label}, run {round_ + 1}/{args.ros_repeat}: {ros}", flush=True)
     for key, values in runs.items():
         factors = [r.get("realtime_factor") or 0.0 for r in values]
@@ -350,6 +357,8 @@ def main(argv=None) -> int:
                         help="also run both nodes composed in one process (the sim_graph executable)")
     parser.add_argument("--ros-repeat", type=int, default=1,
                         help="run each ROS layout this many times, alternated (medians reported)")
+    parser.add_argument("--ros-command-delay", type=int, choices=(0, 1), default=0,
+                        help="1: also run each ROS layout with the bridge's lockstep.command_delay_ticks = 1")
     parser.add_argument("--replay", help="re-solve a saved failing QP (.npz) and report")
     args = parser.parse_args(argv)
     if args.replay:

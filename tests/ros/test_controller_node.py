@@ -23,7 +23,10 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 TICKS = 1100  # 5.5 s of sim time: the hand transfer takes ~4.6 s
 
 
-def test_controller_node_runs_a_hand_transfer_in_lockstep_with_the_bridge(tmp_path):
+@pytest.mark.parametrize("delay", [0, 1], ids=["same_tick", "one_tick_latency"])
+def test_controller_node_runs_a_hand_transfer_in_lockstep_with_the_bridge(tmp_path, delay):
+    """delay 1: the bridge's lockstep.command_delay_ticks (its physics steps while the controller
+    computes, each command acts one period late): the same run, same checks."""
     from climb_core.ros_env import local_dds_env
 
     env = local_dds_env()
@@ -32,7 +35,8 @@ def test_controller_node_runs_a_hand_transfer_in_lockstep_with_the_bridge(tmp_pa
     bridge = subprocess.Popen(
         [sys.executable, "-m", "sim_bridge.node", "--ros-args", "--params-file",
          str(ROOT / "config" / "nodes" / "sim_bridge.yaml"), "-p", f"max_ticks:={TICKS}",
-         "-p", "initial_posture:=ladder_4_contacts", "-p", "execution:=lockstep", "-p", f"cpu_affinity:=[{cpus[0]}]"],
+         "-p", "initial_posture:=ladder_4_contacts", "-p", "execution:=lockstep", "-p", f"cpu_affinity:=[{cpus[0]}]",
+         "-p", f"lockstep.command_delay_ticks:={delay}"],
         env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     controller = subprocess.Popen(
         [sys.executable, "-m", "controller_node.node", "--ros-args", "--params-file",
@@ -59,6 +63,7 @@ def test_controller_node_runs_a_hand_transfer_in_lockstep_with_the_bridge(tmp_pa
     assert bridge.returncode == 0, b_out.decode()[-3000:]
     assert controller.returncode == 0, c_out.decode()[-3000:]
     assert f"pinned to CPUs [{cpus[-1]}]" in c_out.decode() and f"pinned to CPUs [{cpus[0]}]" in b_out.decode()
+    assert ("commands act 1 tick late" in b_out.decode()) == bool(delay)
     check_hand_transfer_run(json.loads(out.read_text()))
 
 

@@ -1,6 +1,7 @@
 """Limb transfers on the default ladder under the QP + contact FSM (in-process, lock-step):
-right hand rung 5 -> rung 6, then right foot rung 1 -> rung 2; guarded motion with rung 6 moved
-2 cm (detection from the wrist F/T); the same hand transfer in PWM compliance mode."""
+right hand rung 5 -> rung 6, then right foot rung 1 -> rung 2 (also with one tick of actuation
+latency); guarded motion with rung 6 moved 2 cm (detection from the wrist F/T); the same hand
+transfer in PWM compliance mode."""
 from __future__ import annotations
 
 import numpy as np
@@ -27,9 +28,10 @@ def backend():
     b.close()
 
 
-def _start(backend, **overrides):
+def _start(backend, command_delay_ticks=0, **overrides):
     params = load_controller_params(**overrides)
-    runner = InProcessRunner.start(backend, params, posture="ladder_4_contacts")
+    runner = InProcessRunner.start(backend, params, posture="ladder_4_contacts",
+                                   command_delay_ticks=command_delay_ticks)
     stance, q = fixtures.get("ladder_4_contacts", backend.robot, backend.env)
     return runner, stance, q
 
@@ -47,8 +49,11 @@ def _hand_touches_other_rungs(runner, limb):
     return hits, check
 
 
-def test_right_hand_then_right_foot_transfer_regrasp_and_no_fall(backend):
-    runner, stance, q = _start(backend)
+@pytest.mark.parametrize("delay", [0, 1], ids=["same_tick", "one_tick_latency"])
+def test_right_hand_then_right_foot_transfer_regrasp_and_no_fall(backend, delay):
+    """delay 1: every command acts one period late (the bridge's lockstep.command_delay_ticks: 1,
+    the pipelined lock-step): the QP controller does the same transfers."""
+    runner, stance, q = _start(backend, command_delay_ticks=delay)
     robot, env = backend.robot, backend.env
     hand = limb_transfer(robot, env, stance, q, "right_hand", "rung_6", HAND_S)
     foot = limb_transfer(robot, env, hand.target_stance, hand.path[-1], "right_foot", "rung_2", FOOT_S)

@@ -93,6 +93,43 @@ def test_lockstep_accepts_only_the_command_stamped_for_the_current_tick():
     assert not stale.accepted and bridge.stale == 2
 
 
+def test_with_one_tick_of_latency_each_period_runs_on_the_previous_tick_s_command():
+    """lockstep.command_delay_ticks = 1: [0, T) and [T, 2T) on the command stamped 0, then
+    [t, t + T) on the one stamped t - T; an answer that overtakes the awaited one is kept for its
+    period, an invalid one stands for its tick (no wait), and a missing one is damped and reported."""
+    bridge = make(**{"lockstep.command_delay_ticks": 1})
+
+    def offer(stamp_ns, value):
+        return bridge.offer_command(NAMES, [TORQUE] * 3, [value] * 3, stamp_ns=stamp_ns)
+
+    assert bridge.awaited_stamp_ns == 0 and not bridge.command_ready()
+    assert offer(0, 1.0).accepted
+    assert np.allclose(bridge.step_lockstep().tau, 1.0)  # [0, T)
+    assert bridge.awaited_stamp_ns == 0 and bridge.command_ready()  # start-up: still the command stamped 0
+    assert offer(PERIOD_NS, 2.0).accepted  # computed from state T while the physics steps
+    assert np.allclose(bridge.step_lockstep().tau, 1.0)  # [T, 2T)
+    assert bridge.awaited_stamp_ns == PERIOD_NS and bridge.command_ready()
+    assert np.allclose(bridge.step_lockstep().tau, 2.0)  # [2T, 3T) on the command stamped T
+    assert bridge.awaited_stamp_ns == 2 * PERIOD_NS and not bridge.command_ready()
+    stale = offer(PERIOD_NS, 9.0)
+    assert not stale.accepted and stale.reason == "stale"
+    too_early = offer(4 * PERIOD_NS, 9.0)
+    assert not too_early.accepted and bridge.stale == 2
+    # the answer to 3T comes first: kept, not applied to [3T, 4T); the answer to 2T is bad
+    assert offer(3 * PERIOD_NS, 4.0).accepted and not bridge.command_ready()
+    bad = offer(2 * PERIOD_NS, math.nan)
+    assert not bad.accepted and bridge.command_ready()  # the tick runs on the last valid command
+    assert np.allclose(bridge.step_lockstep().tau, 4.0)
+    assert bridge.command_ready()  # [4T, 5T): the answer to 3T, kept since it came
+    assert np.allclose(bridge.step_lockstep().tau, 4.0)
+    assert not bridge.command_ready()
+    damped = bridge.step_lockstep()  # nobody answered 4T
+    assert bridge.controller_lost and bridge.lost_ticks == 1
+    assert np.all(np.sign(damped.tau) == -np.sign(damped.v))  # damping, not the last command
+    lost = [d for d in bridge.drain_diagnostics() if d.name == "sim_bridge/controller"]
+    assert lost and "0.020 s" in lost[-1].message  # the awaited stamp, 4T
+
+
 def test_the_step_summary_splits_the_lockstep_period_into_publish_wait_and_step():
     bridge = make()
     summaries = [d for d in bridge.drain_diagnostics() if d.name == "sim_bridge/step"]

@@ -8,6 +8,9 @@
 Each tick: backend state -> :class:`RobotState` (ground-truth estimator) -> ``Controller.tick``
 -> actuator command (TORQUE or PWM, the backend's joint order) and stamped gripper requests ->
 ``backend.step``. ``on_tick`` callbacks see (sim_state, output) for logging / assertions.
+``command_delay_ticks=1`` is the bridge's ``lockstep.command_delay_ticks: 1`` (a one-period
+actuation latency): the period [t, t + T) runs on the command computed from the state of t - T
+(the first command also covers [0, T)), gripper requests act one period later too.
 The sim_bridge package is imported lazily: the controller library itself does not need it.
 """
 from __future__ import annotations
@@ -40,7 +43,7 @@ class RunLog:
 
 
 class InProcessRunner:
-    def __init__(self, backend, controller: Controller, sim_state):
+    def __init__(self, backend, controller: Controller, sim_state, command_delay_ticks: int = 0):
         from sim_bridge import commands  # lazy: only the runner needs the bridge
 
         self._commands = commands
@@ -55,11 +58,15 @@ class InProcessRunner:
         self.on_tick: list[Callable[[Any, ControlOutput], None]] = []
         self._current_limit = None
         self.last_output: ControlOutput | None = None
+        if command_delay_ticks not in (0, 1):
+            raise ValueError(f"command_delay_ticks: must be 0 or 1, got {command_delay_ticks}")
+        self.command_delay_ticks = command_delay_ticks
+        self._held = None  # delay 1: the command computed last tick, applied this one
 
     @classmethod
     def start(cls, backend, params: ControllerParams, robot: str = "g1", ladder: Any = "default",
               posture: str = "standing", q: np.ndarray | None = None, stance: Stance | None = None,
-              fsm_table=None) -> "InProcessRunner":
+              fsm_table=None, command_delay_ticks: int = 0) -> "InProcessRunner":
         """Reset the backend, build the controller on the backend's robot and environment, and
         activate the posture fixture's holds (or ``stance``)."""
         from sim_bridge.backend import ResetRequest
@@ -76,7 +83,7 @@ class InProcessRunner:
             from climb_core import fixtures
 
             stance = fixtures.get(posture, backend.robot, backend.env)[0]
-        runner = cls(backend, controller, sim_state)
+        runner = cls(backend, controller, sim_state, command_delay_ticks)
         controller.reset(runner.robot_state(), stance)
         return runner
 
@@ -93,10 +100,14 @@ class InProcessRunner:
     def step(self) -> ControlOutput:
         c = self._commands
         output = self.controller.tick(self.robot_state())
+        latency_ns = self.command_delay_ticks * round(self.controller.params.control_period_s * 1e9)
         for request in output.grippers:
             self.backend.request_gripper(c.GripperRequest(request.hand, request.command, request.position,
-                                                          self.sim_state.stamp_ns))
-        self.sim_state = self.backend.step(self.command(output))
+                                                          self.sim_state.stamp_ns + latency_ns))
+        command = self.command(output)
+        if self.command_delay_ticks:
+            command, self._held = (self._held if self._held is not None else command), command
+        self.sim_state = self.backend.step(command)
         self._record(output)
         for callback in self.on_tick:
             callback(self.sim_state, output)

@@ -5,7 +5,11 @@ that it is tested without processes:
 
 - **Lock-step**: the state stamped t is published; :meth:`SimBridge.offer_command` accepts the
   command stamped t (others are stale and ignored); :meth:`SimBridge.step_lockstep` steps one
-  control period with it. If none came in time the caller steps anyway: the controller is
+  control period with it. With ``lockstep.command_delay_ticks: 1`` the period [t, t + T) runs on
+  the command stamped t - T instead (the one computed while the physics produced state t; the
+  command stamped 0 also covers [0, T)), so a controller in another process computes the command
+  of t while the physics steps: a one-period actuation latency, still deterministic; a command
+  stamped t that arrives before the one of t - T waits its turn. If none came in time the caller steps anyway: the controller is
   reported lost and every joint is damped until a command stamped for the current tick arrives.
   A command for tick t that fails validation is rejected with a diagnostic naming the problem and
   the tick runs on the last valid command (or damping): the bridge never waits for a second try.
@@ -57,6 +61,7 @@ class SimBridge:
         self.joint_index = {name: i for i, name in enumerate(backend.joint_names)}
         self.state: SimState | None = None
         self._pending: ActuatorCommand | None = None
+        self._early: ActuatorCommand | None = None  # delay 1: the answer to the current stamp, come early
         self._last_valid: ActuatorCommand | None = None
         self._last_command_wall = -np.inf
         self.controller_lost = False
@@ -80,6 +85,7 @@ class SimBridge:
         self.state = self.backend.reset(request)
         self.joint_index = {name: i for i, name in enumerate(self.backend.joint_names)}  # the robot may change
         self._pending = None
+        self._early = None
         self._last_valid = None
         self._last_command_wall = -np.inf
         self.controller_lost = False
@@ -92,6 +98,13 @@ class SimBridge:
     @property
     def stamp_ns(self) -> int:
         return self.backend.stamp_ns
+
+    @property
+    def awaited_stamp_ns(self) -> int:
+        """[ns] stamp of the command the next lock-step period runs on: the current stamp, or one
+        control period earlier with ``lockstep.command_delay_ticks: 1`` (never before 0)."""
+        delay = self.params.lockstep.command_delay_ticks * self.params.physics.control_period_ns
+        return max(self.backend.stamp_ns - delay, 0)
 
     # -- inputs ---------------------------------------------------------------------------------
     def offer_command(self, names: Sequence[str], modes: Sequence[object], values: Sequence[float],
@@ -107,11 +120,16 @@ class SimBridge:
 
     def _offer(self, validate: Callable[[], ActuatorCommand], stamp_ns: int, wall_time: float | None) -> Verdict:
         lockstep = self.params.execution == "lockstep"
-        if lockstep and stamp_ns != self.stamp_ns:
-            self.stale += 1
-            self._diag(WARN, "command", f"ignored a command stamped {stamp_ns * 1e-9:.3f} s while waiting for "
-                       f"{self.stamp_ns * 1e-9:.3f} s (stale or early)", stamp_ns=stamp_ns)
-            return Verdict(False, "stale")
+        early = False
+        if lockstep and stamp_ns != self.awaited_stamp_ns:
+            # delay 1: the command of the current stamp may overtake the awaited one's (lost or
+            # late); it is kept for the next period instead of being thrown away
+            early = stamp_ns == self.stamp_ns
+            if not early:
+                self.stale += 1
+                self._diag(WARN, "command", f"ignored a command stamped {stamp_ns * 1e-9:.3f} s while waiting "
+                           f"for {self.awaited_stamp_ns * 1e-9:.3f} s (stale or early)", stamp_ns=stamp_ns)
+                return Verdict(False, "stale")
         try:
             cmd = validate()
         except SpecError as err:
@@ -119,12 +137,17 @@ class SimBridge:
             fallback = "the last valid command" if self._last_valid is not None else "damping"
             self._diag(ERROR, "command", f"rejected joint_command: {err}; running on {fallback}",
                        field=err.field, rule=err.rule, rejected_total=self.rejected)
-            if lockstep:  # this tick's answer was bad: do not wait for another one
-                self._pending = self._last_valid or ActuatorCommand.damping(len(self.backend.joint_names))
+            fallback_cmd = self._last_valid or ActuatorCommand.damping(len(self.backend.joint_names))
+            if early:
+                self._early = fallback_cmd
+            elif lockstep:  # this tick's answer was bad: do not wait for another one
+                self._pending = fallback_cmd
             return Verdict(False, str(err))
         self._last_valid = cmd
         self._last_command_wall = _time.monotonic() if wall_time is None else wall_time
-        if lockstep:
+        if early:
+            self._early = cmd
+        elif lockstep:
             self._pending = cmd
         return Verdict(True)
 
@@ -142,7 +165,9 @@ class SimBridge:
     def step_lockstep(self) -> SimState:
         """Step one control period on the command of this tick, or damp if the controller is lost."""
         n = len(self.backend.joint_names)
-        if self._pending is not None:
+        answered = self._pending is not None
+        awaited = self.awaited_stamp_ns
+        if answered:
             cmd = self._pending
             if self.controller_lost:
                 self.controller_lost = False
@@ -154,10 +179,15 @@ class SimBridge:
             if not self.controller_lost:
                 self.controller_lost = True
                 self._diag(ERROR, "controller", f"controller lost: no command stamped "
-                           f"{self.stamp_ns * 1e-9:.3f} s within {self.params.lockstep.command_timeout_s} s "
+                           f"{awaited * 1e-9:.3f} s within {self.params.lockstep.command_timeout_s} s "
                            "(wall); damping every joint")
         self._pending = None
-        return self._step(cmd)
+        state = self._step(cmd)
+        if answered and self.awaited_stamp_ns == awaited:
+            self._pending = cmd  # delay 1, first period: the command stamped 0 also covers [T, 2T)
+        elif self._early is not None:
+            self._pending, self._early = self._early, None  # the answer to the stamp now awaited
+        return state
 
     def wait_budget(self) -> float:
         """[s] wall time to wait for this tick's command."""

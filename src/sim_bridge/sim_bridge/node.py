@@ -99,7 +99,9 @@ class SimBridgeNode(Node):
         self.create_service(SimReset, "sim/reset", self._on_reset)
         self.create_service(SimPerturb, "sim/perturb", self._on_perturb)
         self.get_logger().info(f"{p.execution} bridge: {self.backend.robot.config.name} on "
-                               f"{self.backend.scenario.name or 'ladder'}, control period {p.physics.control_period_s} s")
+                               f"{self.backend.scenario.name or 'ladder'}, control period {p.physics.control_period_s} s"
+                               + (f", commands act {p.lockstep.command_delay_ticks} tick late"
+                                  if p.execution == "lockstep" and p.lockstep.command_delay_ticks else ""))
 
     def destroy_node(self) -> None:
         """Disconnects the simulator too (every owner of the node: the executable, sim_graph)."""

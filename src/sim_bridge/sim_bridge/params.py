@@ -50,6 +50,12 @@ class LockstepParams:
                                 description="wall time waited per tick once the controller is lost")
     startup_wait_s: float = param(10.0, unit="s", min=0.0, description="wall time to wait at start-up for a "
                                   "controller (a joint_command publisher and a joint_states subscriber)")
+    command_delay_ticks: int = param(0, unit="-", choices=(0, 1), description="actuation latency in control "
+                                     "ticks: 0 applies the command stamped t over [t, t + T) (the bridge waits "
+                                     "for it); 1 applies it over [t + T, t + 2T) like a robot whose command "
+                                     "lands one period after its sensor read, so the physics of one tick runs "
+                                     "while the controller computes the next (the command stamped 0 also covers "
+                                     "[0, T))")
 
 
 @dataclass(frozen=True)
