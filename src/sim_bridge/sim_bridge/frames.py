@@ -91,14 +91,6 @@ def point_velocity(linear_velocity, angular_velocity, offset) -> np.ndarray:
     return np.array([vx + (wy * rz - wz * ry), vy + (wz * rx - wx * rz), vz + (wx * ry - wy * rx)])
 
 
-def base_twist_from_com(T_world_base: np.ndarray, position_com_in_world: np.ndarray,
-                        linear_velocity_com_in_world: np.ndarray,
-                        angular_velocity_in_world: np.ndarray) -> np.ndarray:
-    """World-frame linear velocity of the root frame origin from PyBullet's COM velocity."""
-    return point_velocity(linear_velocity_com_in_world, angular_velocity_in_world,
-                          T_world_base[:3, 3] - position_com_in_world)
-
-
 def free_flyer_velocity(T_world_base: np.ndarray, linear_velocity_origin_in_world: np.ndarray,
                         angular_velocity_in_world: np.ndarray) -> np.ndarray:
     """Pinocchio free-flyer velocity (local frame): [R^T v_origin, R^T omega]."""

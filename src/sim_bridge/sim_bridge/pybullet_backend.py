@@ -500,7 +500,7 @@ class PyBulletBackend(Backend):
         T_world_base[:3, 3] = origin
         ox, oy, oz = origin.tolist()
         com_to_origin = (ox - pos[0], oy - pos[1], oz - pos[2])  # [m] world frame
-        v_origin = frames.point_velocity(lin, ang, com_to_origin)  # = frames.base_twist_from_com
+        v_origin = frames.point_velocity(lin, ang, com_to_origin)  # the root origin's world velocity
         return T_world_base, com, v_origin, np.array(ang)
 
     def _base_origin_velocity(self) -> np.ndarray:
