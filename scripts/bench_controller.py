@@ -17,7 +17,8 @@ default the bridge is pinned to CPU 0 and the controller to CPU 1 (their ``cpu_a
 parameter; ``--ros-pin off`` leaves them to the scheduler, ``both`` measures both ways in the same
 run; ``--ros-composed`` adds a run of both nodes composed in one ``sim_graph`` process;
 ``--ros-repeat N`` runs each layout N times, alternated, and reports medians: on a shared 2-vCPU
-VM two runs of the same code differ by up to 20 %). This
+VM two runs of the same code differ by up to 20 %; ``--ros-command-delay 1`` adds each layout with
+the bridge's ``lockstep.command_delay_ticks: 1``, keys ``<key>_delay1``). This
 process (the observer) only reads the controller's diagnostics (every 200 ticks) once
 the plan is sent: the lock-step rate is the sim time / wall time between the first and the last
 of them, and the CPU time per tick of both processes (all threads, /proc) over the same window.
