@@ -70,3 +70,22 @@ def test_duty_never_exceeds_the_current_limit_or_the_unit_range(robot_law_cache,
 @pytest.fixture(scope="module")
 def robot_law_cache(law):
     return law
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0), st.floats(-200.0, 200.0))
+def test_a_joint_back_driven_past_its_no_load_speed_still_gets_a_valid_duty(robot_law_cache, error, speed_fraction,
+                                                                             tau):
+    """Joint speeds up to 3x the no-load speed (an impact, a slip back-driving the motor): the duty
+    stays in [-1, 1] (the bridge rejects anything else), and where no duty can hold the current
+    within margin * limit it is the full duty of the velocity's sign, the least current there is."""
+    law = robot_law_cache
+    m = law.motors
+    n = len(law.gains.kp)
+    v = np.full(n, speed_fraction) * m.supply_voltage / m.torque_per_amp  # [rad/s]
+    duty = law.duty(np.full(n, error), np.zeros(n), np.zeros(n), v, np.full(n, tau))
+    assert np.all(np.abs(duty) <= 1.0)
+    i_max = law.current_margin * m.current_limit
+    reachable = np.abs(m.torque_per_amp * v) <= m.supply_voltage + i_max * m.resistance
+    assert np.all(np.abs(law.current(duty, v))[reachable] <= i_max[reachable] + 1e-9)
+    assert np.all(duty[~reachable] == np.sign(v[~reachable]))

@@ -79,12 +79,14 @@ class ComplianceLaw:
         return (m.supply_voltage * duty - m.torque_per_amp * velocity) / m.resistance
 
     def duty_window(self, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Duty bounds keeping |current| <= margin * limit, intersected with [-1, 1]."""
+        """Duty bounds keeping |current| <= margin * limit, intersected with [-1, 1]. A joint
+        back-driven so fast that its back-EMF exceeds what full duty can match has no such duty:
+        its window shrinks to the full duty of its velocity's sign (the least current there is)."""
         m = self.motors
         emf = m.torque_per_amp * velocity
         i_max = self.current_margin * m.current_limit
-        lo = np.maximum((emf - i_max * m.resistance) / m.supply_voltage, -1.0)
-        hi = np.minimum((emf + i_max * m.resistance) / m.supply_voltage, 1.0)
+        lo = np.clip((emf - i_max * m.resistance) / m.supply_voltage, -1.0, 1.0)
+        hi = np.clip((emf + i_max * m.resistance) / m.supply_voltage, -1.0, 1.0)
         return lo, np.maximum(hi, lo)
 
     def duty(self, q_desired: np.ndarray, q: np.ndarray, v_desired: np.ndarray, v: np.ndarray,
