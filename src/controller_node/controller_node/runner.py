@@ -61,6 +61,7 @@ class InProcessRunner:
         if command_delay_ticks not in (0, 1):
             raise ValueError(f"command_delay_ticks: must be 0 or 1, got {command_delay_ticks}")
         self.command_delay_ticks = command_delay_ticks
+        self._latency_ns = command_delay_ticks * round(controller.params.control_period_s * 1e9)
         self._held = None  # delay 1: the command computed last tick, applied this one
 
     @classmethod
@@ -100,10 +101,9 @@ class InProcessRunner:
     def step(self) -> ControlOutput:
         c = self._commands
         output = self.controller.tick(self.robot_state())
-        latency_ns = self.command_delay_ticks * round(self.controller.params.control_period_s * 1e9)
         for request in output.grippers:
             self.backend.request_gripper(c.GripperRequest(request.hand, request.command, request.position,
-                                                          self.sim_state.stamp_ns + latency_ns))
+                                                          self.sim_state.stamp_ns + self._latency_ns))
         command = self.command(output)
         if self.command_delay_ticks:
             command, self._held = (self._held if self._held is not None else command), command

@@ -9,8 +9,9 @@ that it is tested without processes:
   the command stamped t - T instead (the one computed while the physics produced state t; the
   command stamped 0 also covers [0, T)), so a controller in another process computes the command
   of t while the physics steps: a one-period actuation latency, still deterministic; a command
-  stamped t that arrives before the one of t - T waits its turn. If none came in time the caller steps anyway: the controller is
-  reported lost and every joint is damped until a command stamped for the current tick arrives.
+  stamped t that arrives before the one of t - T waits its turn. If none came in time the caller
+  steps anyway: the controller is reported lost and every joint is damped until a command stamped
+  for the awaited tick arrives.
   A command for tick t that fails validation is rejected with a diagnostic naming the problem and
   the tick runs on the last valid command (or damping): the bridge never waits for a second try.
 - **Real-time**: :meth:`SimBridge.step_realtime` uses the last valid command unless it is older
@@ -58,6 +59,7 @@ class SimBridge:
     def __init__(self, backend: Backend, params: BridgeParams):
         self.backend = backend
         self.params = params
+        self._delay_ns = params.lockstep.command_delay_ticks * params.physics.control_period_ns
         self.joint_index = {name: i for i, name in enumerate(backend.joint_names)}
         self.state: SimState | None = None
         self._pending: ActuatorCommand | None = None
@@ -103,8 +105,7 @@ class SimBridge:
     def awaited_stamp_ns(self) -> int:
         """[ns] stamp of the command the next lock-step period runs on: the current stamp, or one
         control period earlier with ``lockstep.command_delay_ticks: 1`` (never before 0)."""
-        delay = self.params.lockstep.command_delay_ticks * self.params.physics.control_period_ns
-        return max(self.backend.stamp_ns - delay, 0)
+        return max(self.backend.stamp_ns - self._delay_ns, 0)
 
     # -- inputs ---------------------------------------------------------------------------------
     def offer_command(self, names: Sequence[str], modes: Sequence[object], values: Sequence[float],
