@@ -38,6 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="after the climb, climb back down to the ground (the reverse of the climbing cycles)")
     ap.add_argument("--snapshots", type=int, default=0, help="film strip frames (DIR/film_strip.png)")
     ap.add_argument("--no-plots", action="store_true", help="do not write DIR/plots.png")
+    ap.add_argument("--command-delay", type=int, default=0, choices=(0, 1),
+                    help="1: every command acts one control period late (a robot's actuation latency; "
+                         "the controller then computes each command for the state one period ahead)")
     return ap
 
 
@@ -48,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
 
     req = ClimbRequest(ladder=args.ladder, robot=args.robot, rungs=args.rungs, mode=args.mode,
                        out_dir=args.out, seed=args.seed, bag=not args.no_bag, snapshots=args.snapshots,
-                       descend=args.descend, plan_cycles=args.plan_cycles)
+                       descend=args.descend, plan_cycles=args.plan_cycles, command_delay_ticks=args.command_delay)
     summary = base_summary(req)
     try:
         result = run_climb(req, on_progress=lambda m: print(m, file=sys.stderr, flush=True))

@@ -26,7 +26,8 @@ TICKS = 1100  # 5.5 s of sim time: the hand transfer takes ~4.6 s
 @pytest.mark.parametrize("delay", [0, 1], ids=["same_tick", "one_tick_latency"])
 def test_controller_node_runs_a_hand_transfer_in_lockstep_with_the_bridge(tmp_path, delay):
     """delay 1: the bridge's lockstep.command_delay_ticks (its physics steps while the controller
-    computes, each command acts one period late): the same run, same checks."""
+    computes, each command acts one period late) with the controller's actuation_latency_s set to
+    that period (it computes each command for the state it will act on): the same run, same checks."""
     from climb_core.ros_env import local_dds_env
 
     env = local_dds_env()
@@ -41,7 +42,8 @@ def test_controller_node_runs_a_hand_transfer_in_lockstep_with_the_bridge(tmp_pa
     controller = subprocess.Popen(
         [sys.executable, "-m", "controller_node.node", "--ros-args", "--params-file",
          str(ROOT / "config" / "nodes" / "controller.yaml"), "-p", "autostart:=false",
-         "-p", "initial_stance:=ladder_4_contacts", "-p", f"cpu_affinity:=[{cpus[-1]}]"],
+         "-p", "initial_stance:=ladder_4_contacts", "-p", f"cpu_affinity:=[{cpus[-1]}]",
+         "-p", f"actuation_latency_s:={delay * 0.005}"],
         env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     observer = subprocess.Popen([sys.executable, __file__, str(out)], env=env, cwd=ROOT,
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT)

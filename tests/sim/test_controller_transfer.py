@@ -1,7 +1,7 @@
 """Limb transfers on the default ladder under the QP + contact FSM (in-process, lock-step):
 right hand rung 5 -> rung 6, then right foot rung 1 -> rung 2 (also with one tick of actuation
 latency); guarded motion with rung 6 moved 2 cm (detection from the wrist F/T); the same hand
-transfer in PWM compliance mode."""
+transfer in PWM compliance mode (also with the latency, compensated by the law's prediction)."""
 from __future__ import annotations
 
 import numpy as np
@@ -52,8 +52,9 @@ def _hand_touches_other_rungs(runner, limb):
 @pytest.mark.parametrize("delay", [0, 1], ids=["same_tick", "one_tick_latency"])
 def test_right_hand_then_right_foot_transfer_regrasp_and_no_fall(backend, delay):
     """delay 1: every command acts one period late (the bridge's lockstep.command_delay_ticks: 1,
-    the pipelined lock-step): the QP controller does the same transfers."""
-    runner, stance, q = _start(backend, command_delay_ticks=delay)
+    the pipelined lock-step) and the controller computing each command for the state one period
+    ahead (``actuation_latency_s``): the QP controller does the same transfers."""
+    runner, stance, q = _start(backend, command_delay_ticks=delay, actuation_latency_s=delay * 0.005)
     robot, env = backend.robot, backend.env
     hand = limb_transfer(robot, env, stance, q, "right_hand", "rung_6", HAND_S)
     foot = limb_transfer(robot, env, hand.target_stance, hand.path[-1], "right_foot", "rung_2", FOOT_S)
@@ -128,8 +129,11 @@ def test_guarded_motion_detects_a_rung_moved_2cm_from_the_wrist_ft(backend, offs
     assert runner.sim_state.grasps["right_hand"] == "rung_6"
 
 
-def test_compliance_mode_hand_transfer_through_the_pwm_motor_model_without_trips(backend):
-    runner, stance, q = _start(backend, mode="compliance")
+@pytest.mark.parametrize("delay", [0, 1], ids=["same_tick", "one_tick_latency_compensated"])
+def test_compliance_mode_hand_transfer_through_the_pwm_motor_model_without_trips(backend, delay):
+    """delay 1: the duty acts one period late and the law runs on the state predicted one period
+    ahead (``actuation_latency_s``); without that prediction 16 drivers trip (measured)."""
+    runner, stance, q = _start(backend, command_delay_ticks=delay, mode="compliance", actuation_latency_s=delay * 0.005)
     robot, env = backend.robot, backend.env
     hand = limb_transfer(robot, env, stance, q, "right_hand", "rung_6", HAND_S)
     runner.controller.set_plan(plan_of(robot, env, stance, [hand]))

@@ -54,6 +54,10 @@ class ClimbRequest:
     max_transitions: int | None = None  # execute only the plan's first k transitions (None: all)
     descend: bool = False  # climb `rungs` rungs, then climb back down to the ground
     plan_cycles: int | None = None  # plan this many cycles at a time, the next ones from the reached state
+    #: 1: every command acts one control period late (the bridge's lockstep.command_delay_ticks);
+    #: the controller then computes each command for the state one period ahead
+    #: (actuation_latency_s), unless controller_overrides set it
+    command_delay_ticks: int = 0
 
 
 @dataclass
@@ -114,6 +118,8 @@ def validate(req: ClimbRequest) -> None:
             raise SpecError("plan_cycles", f"must be an integer >= 1 or None, got {req.plan_cycles!r}")
         if req.descend:
             raise SpecError("plan_cycles", "replanning during a climb and back down is not supported: use one")
+    if isinstance(req.command_delay_ticks, bool) or req.command_delay_ticks not in (0, 1):
+        raise SpecError("command_delay_ticks", f"must be 0 or 1, got {req.command_delay_ticks!r}")
 
 
 def plan(req: ClimbRequest, robot, env, library, settings=None, steps: int | None = None):
@@ -205,6 +211,9 @@ def execute(req: ClimbRequest, whole: WholeBodyPlan, cs: ClimbSettings, summary:
     overrides.update(req.controller_overrides)
     overrides["mode"] = req.mode
     params = load_controller_params(**overrides)
+    if req.command_delay_ticks and "actuation_latency_s" not in overrides:
+        params = load_controller_params(**overrides,
+                                        actuation_latency_s=req.command_delay_ticks * params.control_period_s)
     backend = PyBulletBackend()
     out = ClimbResult(summary, ClimbLog(), whole, backend=backend)
     try:
@@ -221,8 +230,10 @@ def _execute(req, whole, cs, out: ClimbResult, scenario, initial_fixture, params
     from controller_node.runner import InProcessRunner
 
     summary, log = out.summary, out.log
+    if req.command_delay_ticks:
+        summary["command_delay_ticks"] = req.command_delay_ticks
     runner = InProcessRunner.start(backend, params, robot=req.robot, ladder=scenario, posture=initial_fixture,
-                                   stance=whole.initial_stance)
+                                   stance=whole.initial_stance, command_delay_ticks=req.command_delay_ticks)
     controller = runner.controller
     out.controller = controller
     log.joint_names = tuple(controller.joint_names)

@@ -188,6 +188,7 @@ class Controller:
         self._q_fallback: np.ndarray | None = None
         self._tau_ff = np.zeros(self.na)
         self.last_result: WholeBodyResult | None = None
+        self._qdd_held: np.ndarray | None = None  # [m/s^2, rad/s^2] last solved qdd (latency prediction)
         self.state: RobotState | None = None
         self.time = 0.0
         self.tick_count = 0
@@ -238,6 +239,7 @@ class Controller:
         self.moving_limb = ""
         self.replan_needed = False
         self.fallback_active = False
+        self._qdd_held = None
         self.guard_off.clear()
         self._update_ft(state)
         self.fsm.begin(self)
@@ -257,6 +259,8 @@ class Controller:
     # ------------------------------------------------------------------ tick
     def tick(self, state: RobotState) -> ControlOutput:
         t0 = time.perf_counter()
+        if self.params.actuation_latency_s > 0.0:  # the command acts from t + L: compute it for then
+            state = self.predict(state, self.params.actuation_latency_s)
         self.state = state
         self.time = state.time
         self.grippers_out = []
@@ -304,6 +308,7 @@ class Controller:
                 if np.all(np.isfinite(candidate.tau)):
                     result = candidate
                     break
+        self._qdd_held = result.qdd if result is not None and not fallback else None
         if result is not None and not fallback:
             tau = result.tau
             self._tau_ff = tau.copy()
@@ -413,9 +418,23 @@ class Controller:
 
     # ------------------------------------------------------------------ compliance
     def _pwm(self, state: RobotState, tau: np.ndarray) -> np.ndarray:
+        """Eq. (1) toward the posture reference; with an actuation latency L the state is the one
+        predicted at t + L (:meth:`predict`) and the reference is taken at t + L too."""
         ff = tau if self.params.compliance.feedforward == "qp" else None
-        return self.compliance.duty(self.posture_task.q_joints, state.q[7:], self.posture_task.v_joints,
-                                    state.v[6:], ff)
+        q_ref, v_ref = self.posture_task.q_joints, self.posture_task.v_joints
+        latency = self.params.actuation_latency_s
+        if latency > 0.0:
+            q_ref = q_ref + latency * v_ref
+        return self.compliance.duty(q_ref, state.q[7:], v_ref, state.v[6:], ff)
+
+    def predict(self, state: RobotState, horizon: float) -> RobotState:
+        """The state ``horizon`` [s] after ``state`` at the last solved QP's accelerations
+        (constant; none before the first solve or after a fallback): v + a L and q integrated on
+        the configuration manifold by v L + a L^2 / 2. Time, stamp and F/T stay the measured ones."""
+        a = self._qdd_held
+        dq = state.v * horizon if a is None else state.v * horizon + (0.5 * horizon * horizon) * a
+        v = state.v if a is None else state.v + horizon * a
+        return RobotState(state.time, pin.integrate(self.model, state.q, dq), v, state.ft, state.stamp_ns)
 
     # ------------------------------------------------------------------ F/T
     def _update_ft(self, state: RobotState) -> None:

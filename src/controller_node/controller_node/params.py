@@ -190,6 +190,13 @@ class ControllerParams:
     execution: str = param("lockstep", unit="-", choices=("lockstep", "realtime"),
                            description="lockstep: compute on each joint_states; realtime: wall-clock timer")
     control_period_s: float = param(0.005, unit="s", min=1e-4, description="control period (200 Hz)")
+    actuation_latency_s: float = param(0.0, unit="s", min=0.0, max=0.05,
+                                       description="time from the state read to the command acting; each tick "
+                                                   "computes its command for the state predicted that far ahead "
+                                                   "(the last QP's accelerations held); set control_period_s with "
+                                                   "the bridge's lockstep.command_delay_ticks 1 (without it a "
+                                                   "compliance hand transfer trips 16 drivers and a QP climb "
+                                                   "fails at its 11th transition)")
     ladder: str = param("default", unit="-",
                         description="ladder spec (config/ladders/<name>.yaml or a path): the environment of the "
                                     "collision dampers and holds (the planner's nominal one)")
