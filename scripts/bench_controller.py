@@ -157,7 +157,8 @@ def ros_run(ticks: int, pin: bool = True, composed: bool = False, delay: int = 0
     """bridge + controller executables in lock-step; this process publishes the plan and reads
     the controller's diagnostics. ``pin``: bridge on CPU 0, controller on CPU 1; ``composed``:
     both nodes in one `sim_graph` process instead (not pinned); ``delay``: the bridge's
-    lockstep.command_delay_ticks (1: the physics of a tick runs while the controller computes)."""
+    lockstep.command_delay_ticks (1: the physics of a tick runs while the controller computes; the
+    controller's actuation_latency_s is then set to the period, as a robot would run it)."""
     from climb_core.ros_env import apply_local_dds_env, local_dds_env
 
     env = local_dds_env()
@@ -169,7 +170,8 @@ def ros_run(ticks: int, pin: bool = True, composed: bool = False, delay: int = 0
              "--params-file", str(ROOT / "config" / "nodes" / "sim_bridge.yaml"),
              "--params-file", str(ROOT / "config" / "nodes" / "controller.yaml"), "-p", f"max_ticks:={ticks}",
              "-p", "initial_posture:=ladder_4_contacts", "-p", "initial_stance:=ladder_4_contacts",
-             "-p", "execution:=lockstep", "-p", f"lockstep.command_delay_ticks:={delay}"],
+             "-p", "execution:=lockstep", "-p", f"lockstep.command_delay_ticks:={delay}",
+             "-p", f"actuation_latency_s:={delay * 0.005}"],
             env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         pin = False
     else:
@@ -182,7 +184,8 @@ def ros_run(ticks: int, pin: bool = True, composed: bool = False, delay: int = 0
             env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         controller = subprocess.Popen(
             [sys.executable, "-m", "controller_node.node", "--ros-args", "--params-file",
-             str(ROOT / "config" / "nodes" / "controller.yaml"), "-p", "initial_stance:=ladder_4_contacts"]
+             str(ROOT / "config" / "nodes" / "controller.yaml"), "-p", "initial_stance:=ladder_4_contacts",
+             "-p", f"actuation_latency_s:={delay * 0.005}"]
             + (["-p", "cpu_affinity:=[1]"] if pin else []),
             env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     import rclpy
