@@ -31,7 +31,8 @@ from climb_core.ros_env import apply_local_dds_env
 
 def main(args: list[str] | None = None) -> int:
     from controller_node.node import ControllerNode, apply_nice
-    from sim_bridge.node import SimBridgeNode, make_executor
+    from climb_core.ros_env import make_executor
+    from sim_bridge.node import SimBridgeNode
 
     apply_local_dds_env()
     rclpy.init(args=args)

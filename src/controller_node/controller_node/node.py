@@ -45,8 +45,7 @@ from climb_msgs.msg import ControllerState, GripperCommand, JointCommand, WholeB
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import WrenchStamped
 from nav_msgs.msg import Odometry
-from rclpy.exceptions import ParameterUninitializedException
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -55,7 +54,7 @@ from sensor_msgs.msg import Imu, JointState
 
 from climb_core.errors import ClimbError
 from climb_core.params import describe
-from climb_core.ros_env import apply_local_dds_env
+from climb_core.ros_env import apply_cpu_affinity, apply_local_dds_env, make_executor
 from msgs_py import cdr
 
 from .controller import Controller
@@ -407,26 +406,6 @@ def apply_nice(node: ControllerNode) -> None:
         node.get_logger().warning(f"nice({increment}) refused: {err}")
 
 
-def _apply_affinity(node: ControllerNode) -> None:
-    from climb_core.ros_env import pin_to_cpus
-
-    try:
-        value = node.get_parameter("cpu_affinity").value
-    except ParameterUninitializedException:  # not given: keep the inherited CPU set
-        return
-    pin_to_cpus(value, node.get_logger())
-
-
-def make_executor() -> Executor:
-    """rclpy's EventsExecutor (C++ event queue), else SingleThreadedExecutor. Drive it with
-    ``spin_once`` (see the module docstring)."""
-    try:
-        from rclpy.experimental import EventsExecutor
-    except ImportError:  # pragma: no cover - rclpy before Jazzy
-        return SingleThreadedExecutor()
-    return EventsExecutor()
-
-
 def main(args: list[str] | None = None) -> int:
     apply_local_dds_env()
     rclpy.init(args=args)
@@ -440,7 +419,7 @@ def main(args: list[str] | None = None) -> int:
             node.trigger_activate()
         executor = make_executor()
         executor.add_node(node)
-        _apply_affinity(node)  # after the DDS threads exist: every thread of the process
+        apply_cpu_affinity(node)  # after the DDS threads exist: every thread of the process
         while rclpy.ok():
             executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -25,8 +25,7 @@ from climb_msgs.srv import SimPerturb, SimReset
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import WrenchStamped
 from nav_msgs.msg import Odometry
-from rclpy.exceptions import ParameterUninitializedException
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -36,7 +35,7 @@ from sensor_msgs.msg import Imu, JointState
 
 from climb_core.errors import ClimbError, SpecError
 from climb_core.params import describe, flatten, parse_params
-from climb_core.ros_env import apply_local_dds_env
+from climb_core.ros_env import apply_cpu_affinity, apply_local_dds_env, make_executor
 from msgs_py import cdr
 
 from .backend import ResetRequest, SimState
@@ -327,26 +326,6 @@ class SimBridgeNode(Node):
                 next_tick = time.monotonic()
 
 
-def make_executor() -> Executor:
-    """rclpy's EventsExecutor (C++ event queue: about half the CPU of SingleThreadedExecutor per
-    message, FIELD_NOTES; it doubled the lock-step rate over ROS), else SingleThreadedExecutor."""
-    try:
-        from rclpy.experimental import EventsExecutor
-    except ImportError:  # pragma: no cover - rclpy before Jazzy
-        return SingleThreadedExecutor()
-    return EventsExecutor()
-
-
-def _apply_affinity(node: SimBridgeNode) -> None:
-    from climb_core.ros_env import pin_to_cpus
-
-    try:
-        value = node.get_parameter("cpu_affinity").value
-    except ParameterUninitializedException:  # not given: keep the inherited CPU set
-        return
-    pin_to_cpus(value, node.get_logger())
-
-
 def main(args: list[str] | None = None) -> int:
     apply_local_dds_env()
     rclpy.init(args=args)
@@ -356,7 +335,7 @@ def main(args: list[str] | None = None) -> int:
         node = SimBridgeNode()
         executor = make_executor()
         executor.add_node(node)
-        _apply_affinity(node)  # after the DDS threads exist: every thread of the process
+        apply_cpu_affinity(node)  # after the DDS threads exist: every thread of the process
         if node.params.execution == "lockstep":
             node.run_lockstep(executor)
         else:
