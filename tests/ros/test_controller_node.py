@@ -74,10 +74,13 @@ def check_hand_transfer_run(r: dict) -> None:
     # lifecycle: nothing commanded before activation
     assert r["lifecycle"] == ["unconfigured", "inactive", "active"]
     assert r["commands_while_inactive"] == 0
-    # lock-step: the run reached its last tick, every state seen got its controller answer (the
-    # observer may join a few ticks late), and the bridge never reported the controller lost
+    # lock-step: the run reached its last tick, the observer saw every state from the one it
+    # joined at (its subscription may match the bridge's publisher after the loop started: up to
+    # ~90 ticks late measured, the loop being faster with the one-period latency), every state
+    # seen got its controller answer, and the bridge never reported the controller lost
     assert r["last_stamp_ns"] == TICKS * 5_000_000
-    assert r["n_states"] >= TICKS - 20
+    assert r["first_stamp_ns"] <= 300 * 5_000_000
+    assert r["n_states"] == (r["last_stamp_ns"] - r["first_stamp_ns"]) // 5_000_000 + 1  # no gap
     assert r["answered"] == r["n_states"]
     assert not r["lost"]
     # the transfer ran through the FSM and ended with the hand on rung 6, nothing fell
@@ -196,15 +199,19 @@ def observer_main(out_path: str) -> int:
             if not sent and rec["answered"]:
                 plan_pub.publish(whole_body_plan_to_msg(plan))
                 sent = True
-        end = time.monotonic() + 0.5
-        while time.monotonic() < end:
+        # drain: this Python executor may trail the loop (a faster loop with the one-period
+        # latency, a loaded machine); wait until every state seen has its controller/state, or 10 s
+        end = time.monotonic() + 10.0
+        quiet_until = time.monotonic() + 0.5
+        while time.monotonic() < end and (time.monotonic() < quiet_until
+                                          or not set(rec["states"]) <= rec["answered"]):
             executor.spin_once(timeout_sec=0.05)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
     result = {"lifecycle": rec["lifecycle"], "commands_while_inactive": rec["inactive_cmds"],
               "n_states": len(rec["states"]), "answered": len(rec["answered"] & set(rec["states"])),
-              "last_stamp_ns": max(rec["states"]),
+              "last_stamp_ns": max(rec["states"]), "first_stamp_ns": min(rec["states"]),
               "lost": rec["lost"], "fsm_states": rec["fsm"], "max_qp_failures": rec["failures"],
               "grasp_latched": rec["grasp"], "min_base_z": float(np.min(rec["z"])), "base_z0": float(rec["z"][0]),
               "diag": rec["diag"]}
