@@ -160,9 +160,8 @@ def controller_main(out_path: str, ticks: int, bridge_pid: int, pin_cpu: int = -
     from sensor_msgs.msg import JointState
 
     from climb_core.robot import load_robot
-    from climb_core.ros_env import make_executor
+    from climb_core.ros_env import make_executor, pin_to_cpus
     from sim_bridge.node import qos
-    from climb_core.ros_env import pin_to_cpus
 
     robot = load_robot("g1")
     controller = StandingPd(robot)

@@ -212,8 +212,7 @@ def execute(req: ClimbRequest, whole: WholeBodyPlan, cs: ClimbSettings, summary:
     overrides["mode"] = req.mode
     params = load_controller_params(**overrides)
     if req.command_delay_ticks and "actuation_latency_s" not in overrides:
-        params = load_controller_params(**overrides,
-                                        actuation_latency_s=req.command_delay_ticks * params.control_period_s)
+        params = params.replace(actuation_latency_s=req.command_delay_ticks * params.control_period_s)
     backend = PyBulletBackend()
     out = ClimbResult(summary, ClimbLog(), whole, backend=backend)
     try:
