@@ -84,10 +84,11 @@ while True:  # until SIGKILL: 2 kHz of joint states, the count reported every 20
 """
 
 
-def test_a_killed_recorder_loses_at_most_its_flush_period(tmp_path: pathlib.Path):
-    """SIGKILL while recording: the bag has no metadata.yaml and no MCAP summary, yet every message
-    written more than flush_period_s before the kill is read back, in order, and recover_bag turns
-    it into a complete bag that rosbags and the mcap tools open."""
+def test_a_killed_recorder_leaves_a_bag_standard_readers_open_as_is(tmp_path: pathlib.Path):
+    """SIGKILL while recording: metadata.yaml is there and the MCAP file is complete (summary and
+    footer rewritten at every flush), so rosbags' Reader and mcap's reader open it as is, with
+    every message written more than a few flush periods before the kill, in order and no gap;
+    recover_bag has nothing to repair."""
     import os
     import signal
     import subprocess
@@ -113,19 +114,71 @@ def test_a_killed_recorder_loses_at_most_its_flush_period(tmp_path: pathlib.Path
         os.kill(child.pid, signal.SIGKILL)
         child.wait()
     assert child.returncode == -signal.SIGKILL
-    assert not (bag / "metadata.yaml").exists()
-    with pytest.raises(FileNotFoundError):
-        Reader(bag)  # what a standard reader makes of it: no metadata.yaml
+    assert (bag / "metadata.yaml").is_file()
     # everything reported at least 0.5 s (5 flush periods) before the kill must be there
     safe = max(n for t, n in reports if t <= kill_time - 0.5)
-    positions = [m.decode().position[0] for m in read_bag(bag)]
+    with Reader(bag) as reader:
+        positions = [_decode_position(data) for _, _, data in reader.messages()]
+        assert reader.message_count == len(positions)
     assert len(positions) >= safe > 100
     assert positions == [float(k) for k in range(len(positions))]  # no gap, no reordering
-    assert recover_bag(bag) == len(positions)
-    assert (bag / "metadata.yaml").is_file() and not list(tmp_path.glob(".killed*"))
-    with Reader(bag) as reader:
-        assert reader.message_count == len(positions)
     (mcap_file,) = bag.glob("*.mcap")
     with open(mcap_file, "rb") as f:
-        assert make_reader(f).get_summary().statistics.message_count == len(positions)
+        reader = make_reader(f)
+        assert reader.get_summary().statistics.message_count == len(positions)
+        assert sum(1 for _ in reader.iter_messages()) == len(positions)
     assert [m.decode().position[0] for m in read_bag(bag)] == positions
+    assert recover_bag(bag) == len(positions)
+
+
+def _decode_position(data: bytes) -> float:
+    from rclpy.serialization import deserialize_message
+
+    return deserialize_message(data, JointState).position[0]
+
+
+def test_recover_bag_repairs_an_old_style_unclosed_bag(tmp_path: pathlib.Path):
+    """A bag cut without summary and metadata.yaml (an older recorder killed): read_bag reads it
+    record by record and recover_bag rewrites it complete."""
+    from rosbags.rosbag2 import Reader
+
+    from msgs_py.bag import recover_bag
+
+    bag = tmp_path / "old"
+    with BagRecorder(bag, close_on_signals=False) as rec:
+        for k in range(50):
+            rec.write("joint_states", _joint_state(k), 5_000_000 * k)
+    (mcap_file,) = bag.glob("*.mcap")
+    data = mcap_file.read_bytes()
+    # keep the data section only (header + chunks): cut at the DataEnd record
+    end = data.rfind(b"\x0f\x04\x00\x00\x00\x00\x00\x00\x00")  # DataEnd opcode + length 4
+    mcap_file.write_bytes(data[:end])
+    (bag / "metadata.yaml").unlink()
+    assert [m.decode().position[0] for m in read_bag(bag)] == [0.1 * k for k in range(50)]
+    assert recover_bag(bag) == 50
+    with Reader(bag) as r:
+        assert r.message_count == 50
+
+
+def test_types_without_a_msg_file_and_qos_are_recorded(tmp_path: pathlib.Path):
+    """An action's feedback message (no .msg file: its definition comes from the Python class) and
+    a latched topic's QoS (durability transient_local) land in the bag."""
+    from climb_msgs.action import Climb
+    from rosbags.interfaces import QosDurability
+
+    from msgs_py.bag import bag_topics, qos_profile
+
+    bag = tmp_path / "types"
+    fb = Climb.Impl.FeedbackMessage()
+    fb.feedback.phase = "executing"
+    with BagRecorder(bag, close_on_signals=False) as rec:
+        rec.add_topic("/climb/request", "std_msgs/msg/String", [qos_profile(durability="transient_local", depth=1)])
+        rec.write("/climb/_action/feedback", fb, 1)
+        from std_msgs.msg import String
+
+        rec.write("/climb/request", String(data="{}"), 2)
+    (fb_msg, req) = list(read_bag(bag))
+    assert fb_msg.decode().feedback.phase == "executing"
+    topics = bag_topics(bag)
+    assert topics["/climb/request"].qos[0].durability == QosDurability.TRANSIENT_LOCAL
+    assert topics["/climb/request"].count == 1
