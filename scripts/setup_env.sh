@@ -40,7 +40,7 @@ if [ ! -f "$stamps/cmake_paths" ]; then
   touch "$stamps/cmake_paths"
 fi
 
-msgs_hash=$(hash_of src/climb_msgs/CMakeLists.txt src/climb_msgs/package.xml src/climb_msgs/msg/* src/climb_msgs/srv/*)
+msgs_hash=$(hash_of src/climb_msgs/CMakeLists.txt src/climb_msgs/package.xml src/climb_msgs/msg/* src/climb_msgs/srv/* src/climb_msgs/action/*)
 if [ "$(cat "$stamps/climb_msgs" 2>/dev/null)" != "$msgs_hash" ]; then
   echo "[setup] building climb_msgs (rosidl) into .venv"
   build="$root/build/climb_msgs"
@@ -50,7 +50,7 @@ if [ "$(cat "$stamps/climb_msgs" 2>/dev/null)" != "$msgs_hash" ]; then
       -DPython3_EXECUTABLE="$venv/bin/python" -DBUILD_TESTING=OFF -DCMAKE_BUILD_TYPE=Release > cmake.log 2>&1 \
     && make -j2 > make.log 2>&1 && make install > install.log 2>&1 ) \
     || { echo "[setup] climb_msgs build failed; see $build/*.log" >&2; tail -30 "$build"/*.log >&2; exit 1; }
-  "$venv/bin/python" -c "from climb_msgs.msg import Hold; from climb_msgs.srv import Climb" \
+  "$venv/bin/python" -c "from climb_msgs.msg import Hold, SimContacts; from climb_msgs.srv import Climb; from climb_msgs.action import Climb as ClimbAction" \
     || { echo "[setup] climb_msgs built but does not import" >&2; exit 1; }
   echo "$msgs_hash" > "$stamps/climb_msgs"
 fi
