@@ -9,10 +9,13 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/launch", ["launch/climb.launch.py"]),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
     description="Climb orchestration: plan, execute in the simulator, record.",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["sim_graph = climb_coordinator.sim_graph:main"]},
+    entry_points={"console_scripts": ["sim_graph = climb_coordinator.sim_graph:main",
+                                        "recorder = climb_coordinator.recorder_node:main",
+                                        "climb_coordinator = climb_coordinator.coordinator_node:main"]},
 )
