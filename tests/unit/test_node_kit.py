@@ -246,13 +246,17 @@ def test_safe_publish_after_shutdown():
 # ------------------------------------------------------------------------- run_node (children)
 CHILD = textwrap.dedent("""
     import sys, time, threading
+    from climb_core.ros_env import install_signal_handlers
+    install_signal_handlers()  # first: what follows stands for an executable's heavy imports
+    mode = sys.argv[1]
+    if mode == "slow_import":
+        print("ready", flush=True)
+        time.sleep(3.0)
     from msgs_py import node_kit
     from climb_core.errors import SpecError
     import rclpy
     from std_msgs.msg import String
     from rclpy.node import Node
-
-    mode = sys.argv[1]
 
     class Talker(Node):
         def __init__(self):
@@ -309,7 +313,9 @@ def test_run_node_exit_codes():
 
 @pytest.mark.parametrize("sig,delay,mode", [(signal.SIGINT, 0.05, "talk"), (signal.SIGTERM, 0.3, "talk"),
                                             (signal.SIGTERM, 0.5, "slow_factory"),
-                                            (signal.SIGINT, 0.0, "slow_factory")])
+                                            (signal.SIGINT, 0.0, "slow_factory"),
+                                            (signal.SIGINT, 0.2, "slow_import"),
+                                            (signal.SIGTERM, 0.2, "slow_import")])
 def test_run_node_signal_exits_zero(sig, delay, mode):
     code, err = run_child(mode, sig, delay)
     assert code == 0, err

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import os
 import pathlib
+import signal
+import threading
 from typing import Mapping, MutableMapping
 
 #: Default private domain id; tests add a per-session offset.
@@ -56,6 +58,27 @@ def apply_local_dds_env(environ: MutableMapping[str, str] | None = None, domain_
             continue
         if target.get(key) != value:
             target[key] = value
+
+
+#: Set by SIGINT / SIGTERM once :func:`install_signal_handlers` ran (msgs_py.node_kit reads it).
+STOP = threading.Event()
+
+
+def _on_signal(signum, frame) -> None:  # noqa: ARG001 - signal handler signature
+    STOP.set()
+
+
+def install_signal_handlers() -> bool:
+    """SIGINT and SIGTERM only set :data:`STOP` (no KeyboardInterrupt, no default death): the
+    node's loop ends at its next turn and the process exits 0 (msgs_py.node_kit.run_node). This
+    module is light on purpose: an executable calls it first thing in ``main()``, before its
+    heavy imports (rclpy, numpy, pinocchio, pybullet take seconds on a loaded machine), so that
+    a signal during the imports is handled too. Main thread only; False elsewhere."""
+    if threading.current_thread() is not threading.main_thread():
+        return False
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    return True
 
 
 def pin_to_cpus(cpus, logger=None) -> set[int] | None:

@@ -17,11 +17,21 @@
 Functions take the node as an argument, so a LifecycleNode uses them as a Node does. Loops that
 spin by themselves (the bridge's lock-step) check :func:`running` at each turn; never call
 ``executor.spin()`` (rclpy's EventsExecutor.spin() in the Jazzy wheels never runs a callback).
+
+A signal can come while the executable still imports (seconds on a loaded machine): the module
+its console script names must be light at the top, and ``main()`` installs the handlers before
+the heavy imports::
+
+    def main(args=None) -> int:                     # <pkg>/<module>.py, entry point
+        from climb_core.ros_env import install_signal_handlers
+        install_signal_handlers()                   # light module: no rclpy, no numpy
+        from msgs_py.node_kit import run_node
+        from .my_node import MyNode                 # rclpy, numpy, ... only now
+        return run_node(MyNode, args, name="my_node")
 """
 from __future__ import annotations
 
 import math
-import signal
 import sys
 import threading
 import traceback
@@ -31,6 +41,7 @@ import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.parameter import Parameter
 
+from climb_core import ros_env as _ros_env
 from climb_core.errors import ClimbError, SpecError
 from climb_core.params import ParamInfo, describe, flatten, parse_params
 
@@ -43,8 +54,6 @@ __all__ = ["run_node", "running", "request_stop", "stop_requested", "install_sig
 #: [s] longest wait of the default loop's spin_once: the delay between a signal and the exit
 SPIN_PERIOD_S = 0.1
 
-_STOP = threading.Event()
-_INSTALLED = False
 
 
 def _shutdown_errors() -> tuple[type[BaseException], ...]:
@@ -59,19 +68,8 @@ SHUTDOWN_ERRORS = _shutdown_errors()
 
 
 # ------------------------------------------------------------------------------------ signals
-def _on_signal(signum, frame) -> None:  # noqa: ARG001 - signal handler signature
-    _STOP.set()
-
-
-def install_signal_handlers() -> None:
-    """SIGINT and SIGTERM set the stop flag (idempotent; main thread only). Call it as early as
-    possible in an executable: a signal before it ends the process the default way."""
-    global _INSTALLED
-    if threading.current_thread() is not threading.main_thread():
-        return
-    signal.signal(signal.SIGINT, _on_signal)
-    signal.signal(signal.SIGTERM, _on_signal)
-    _INSTALLED = True
+_STOP = _ros_env.STOP  # one flag per process, set by SIGINT / SIGTERM (climb_core.ros_env)
+install_signal_handlers = _ros_env.install_signal_handlers
 
 
 def request_stop() -> None:
