@@ -95,6 +95,198 @@ def check_hand_transfer_run(r: dict) -> None:
 
 
 # ------------------------------------------------------------------------------------------------
+# bad requests to a lone controller (issue 20 rows 2, 4, 6; the hold service refused when it cannot
+# hold): each is refused with the reason, the process keeps running and serving
+
+
+@pytest.fixture(scope="module")
+def lone_controller():
+    """A controller process (autostart off, no bridge) and a client of the test process."""
+    from harness import PARAMS, Client, NodeProcess
+
+    node = NodeProcess.module("controller_node.node", "--params-file", str(PARAMS / "controller.yaml"),
+                              "-p", "autostart:=false", name="controller")
+    client = Client("controller_bad_requests")
+    try:
+        yield node, client
+    finally:
+        client.close()
+        code = node.stop()
+        out = node.tail()
+        node.close()
+    assert code == 0, out
+
+
+def _change_state(client, transition_id: int):
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+
+    return client.call(ChangeState, "controller/change_state",
+                       ChangeState.Request(transition=Transition(id=transition_id)), timeout=60.0)
+
+
+def _lifecycle_state(client) -> str:
+    from lifecycle_msgs.srv import GetState
+
+    return client.call(GetState, "controller/get_state", timeout=30.0).current_state.label
+
+
+def test_lifecycle_transition_by_id_invalid_in_the_state_is_refused(lone_controller):
+    """Issue 20 row 2: configure while inactive / activate while unconfigured, sent by id, made
+    the process exit (RCLError "Transition is not registered"); now success = False."""
+    from lifecycle_msgs.msg import Transition
+
+    node, client = lone_controller
+    assert client.wait_service(__import__("lifecycle_msgs.srv", fromlist=["GetState"]).GetState,
+                               "controller/get_state", 60.0), node.tail()
+    assert _lifecycle_state(client) == "unconfigured"
+    refused = _change_state(client, Transition.TRANSITION_ACTIVATE)
+    assert refused is not None and refused.success is False, node.tail()
+    assert node.alive(), node.tail()
+    assert _lifecycle_state(client) == "unconfigured"
+    assert _change_state(client, Transition.TRANSITION_CONFIGURE).success, node.tail()
+    assert _lifecycle_state(client) == "inactive"
+    for bad in (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_CLEANUP + 100, 255):
+        refused = _change_state(client, bad)
+        assert refused is not None and refused.success is False, (bad, node.tail())
+        assert node.alive(), node.tail()
+    assert _lifecycle_state(client) == "inactive"
+
+
+def test_set_parameters_is_validated_with_the_schema(lone_controller):
+    """Issue 20 row 4: control_period_s = -5.0 and mode = 'banana' were accepted."""
+    node, client = lone_controller
+    results = client.set_parameters("controller", {"control_period_s": -5.0})
+    reason = results[0].reason  # rclpy's range check (descriptor) or the schema's: either names the bound
+    assert not results[0].successful and "control_period_s" in reason and ("range" in reason or ">=" in reason), \
+        reason
+    results = client.set_parameters("controller", {"mode": "banana"})
+    assert not results[0].successful and "mode" in results[0].reason and "compliance" in results[0].reason, \
+        results[0].reason
+    results = client.set_parameters("controller", {"collision.security_distance": 0.5})  # a cross-field rule
+    assert not results[0].successful and "influence_distance" in results[0].reason, results[0].reason
+    values = client.get_parameters("controller", ["control_period_s", "mode"])
+    assert values == {"control_period_s": 0.005, "mode": "qp"}
+    assert node.alive(), node.tail()
+
+
+def _diagnostics(client) -> list:
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    if not hasattr(client, "_diags"):
+        client._diags = client.subscribe(DiagnosticArray, "diagnostics", depth=200)
+    return client._diags
+
+
+def _plan_reports(client) -> list:
+    return [s for d in _diagnostics(client) for s in d.status if s.name == "controller/plan"]
+
+
+def _good_plan():
+    from climb_core import fixtures
+    from climb_core.environment import build_environment
+    from climb_core.ladder import load_scenario
+    from climb_core.robot import load_robot
+    from controller_node.simple_plans import limb_transfer, plan_of
+
+    robot = load_robot("g1")
+    env = build_environment(load_scenario("default"))
+    stance, q = fixtures.get("ladder_4_contacts", robot, env)
+    return plan_of(robot, env, stance, [limb_transfer(robot, env, stance, q, "right_hand", "rung_6", -0.15)])
+
+
+def test_bad_whole_body_plans_are_rejected_naming_the_field_then_a_good_one_is_taken(lone_controller):
+    """Issue 20 row 6: joint_names not matching the configurations killed the controller (code 2,
+    "cannot reshape array"). Also NaN / inf in a path, unknown joint names, an unknown limb or
+    surface: each is rejected with a diagnostic naming the field; a good plan is accepted after."""
+    import array
+
+    from climb_msgs.msg import WholeBodyPlan
+    from lifecycle_msgs.msg import Transition
+
+    from msgs_py.contact import whole_body_plan_to_msg
+
+    node, client = lone_controller
+    if _lifecycle_state(client) == "unconfigured":
+        assert _change_state(client, Transition.TRANSITION_CONFIGURE).success, node.tail()
+    _diagnostics(client)
+    assert client.wait_matched(WholeBodyPlan, "whole_body_plan", 60.0, [node]), node.tail()
+    good = whole_body_plan_to_msg(_good_plan())
+
+    def variant(edit):
+        msg = whole_body_plan_to_msg(_good_plan())
+        edit(msg)
+        return msg
+
+    def fewer_names(m):  # joint names and configurations disagree (q has 7 + 43 entries, 42 names)
+        m.joint_names = m.joint_names[:-1]
+
+    def consistent_but_short(m):  # 42 names and every q cut to 7 + 42: consistent, not the robot's
+        m.joint_names = m.joint_names[:-1]
+        for t in m.transitions:
+            for c in t.path:
+                c.q = c.q[:-1]
+
+    def nan_in_path(m):
+        q = m.transitions[0].path[1].q
+        q[10] = float("nan")
+
+    def inf_time(m):
+        t = m.transitions[0].times
+        t[-1] = float("inf")
+
+    def unknown_joint(m):
+        m.joint_names[3] = "tail_joint"
+
+    def unknown_limb(m):
+        m.transitions[0].moving_limb = "third_arm"
+
+    def unknown_surface(m):
+        m.transitions[0].target_stance.holds[0].env_surface = "rung_99"
+
+    def swapped_joints(m):
+        m.joint_names[0], m.joint_names[1] = m.joint_names[1], m.joint_names[0]
+
+    def zero_quaternion(m):
+        q = m.transitions[0].path[0].q
+        q[3:7] = array.array("d", [0.0, 0.0, 0.0, 0.0])
+
+    cases = [(fewer_names, "whole_body_plan."), (consistent_but_short, "whole_body_plan.joint_names"),
+             (nan_in_path, "whole_body_plan.transitions[0].path[1]"), (inf_time, "whole_body_plan.transitions[0].times"),
+             (unknown_joint, "whole_body_plan.joint_names"), (unknown_limb, "whole_body_plan.transitions[0].moving_limb"),
+             (unknown_surface, "env_surface"), (swapped_joints, "whole_body_plan.joint_names"),
+             (zero_quaternion, "whole_body_plan.transitions[0].path[0]")]
+    for edit, field in cases:
+        before = len(_plan_reports(client))
+        client.publish(WholeBodyPlan, "whole_body_plan", variant(edit))
+        assert client.spin_until(lambda: len(_plan_reports(client)) > before, 30.0), (edit.__name__, node.tail())
+        report = _plan_reports(client)[-1]
+        assert report.level == b"\x02" and field in report.message, (edit.__name__, report.message)
+        assert node.alive(), node.tail()
+    before = len(_plan_reports(client))
+    client.publish(WholeBodyPlan, "whole_body_plan", good)
+    assert client.spin_until(lambda: len(_plan_reports(client)) > before, 30.0), node.tail()
+    report = _plan_reports(client)[-1]
+    assert report.level == b"\x00" and "accepted" in report.message, report.message
+
+
+def test_hold_is_refused_with_the_reason_when_the_controller_cannot_hold(lone_controller):
+    from lifecycle_msgs.msg import Transition
+    from std_srvs.srv import Trigger
+
+    node, client = lone_controller
+    if _lifecycle_state(client) == "unconfigured":
+        assert _change_state(client, Transition.TRANSITION_CONFIGURE).success, node.tail()
+    answer = client.call(Trigger, "controller/hold", timeout=30.0)
+    assert answer is not None and not answer.success and "inactive" in answer.message, answer
+    assert _change_state(client, Transition.TRANSITION_ACTIVATE).success, node.tail()
+    answer = client.call(Trigger, "controller/hold", timeout=30.0)  # active, but no bridge: no state
+    assert answer is not None and not answer.success and "no robot state" in answer.message, answer
+    assert _change_state(client, Transition.TRANSITION_DEACTIVATE).success, node.tail()
+    assert node.alive(), node.tail()
+
+
+# ------------------------------------------------------------------------------------------------
 # the observer process
 
 
@@ -179,7 +371,7 @@ def observer_main(out_path: str) -> int:
         return call(get_state, GetState.Request()).current_state.label
 
     try:
-        assert get_state.wait_for_service(timeout_sec=20.0) and change.wait_for_service(timeout_sec=5.0)
+        assert get_state.wait_for_service(timeout_sec=90.0) and change.wait_for_service(timeout_sec=30.0)
         rec["lifecycle"].append(lifecycle_state())
         call(change, ChangeState.Request(transition=Transition(id=Transition.TRANSITION_CONFIGURE)))
         rec["lifecycle"].append(lifecycle_state())

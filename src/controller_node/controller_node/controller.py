@@ -88,6 +88,10 @@ class ControllerEvent:
     values: dict[str, Any]
 
 
+class HoldRefused(RuntimeError):
+    """:meth:`Controller.hold_plan` cannot hold now (the message says why)."""
+
+
 @dataclass
 class _Ramp:
     kind: str  # release | engage
@@ -178,6 +182,7 @@ class Controller:
         self._approach: dict[str, np.ndarray] = {}  # limb -> unit approach direction (world)
         # outputs / bookkeeping
         self.grippers_out: list[GripperRequest] = []
+        self._queued_grippers: list[GripperRequest] = []  # requested between two ticks (hold_plan)
         self.events: list[ControllerEvent] = []
         self.qp_failures = 0
         self.saved_failures: list[pathlib.Path] = []
@@ -251,6 +256,46 @@ class Controller:
         self.transition = None
         self.replan_needed = False  # idle / hold / replan_needed raise `plan` on their next run
 
+    def hold_plan(self) -> str:
+        """Abandon the plan now and hold the active contacts where they are (an external cancel):
+        the FSM goes to ``hold`` (event ``hold``) from any state but ``failure``; a contact being
+        released keeps its full load (ramp cancelled), a contact being engaged finishes its ramp,
+        a free limb stays where it is (no contact-body task), a hand whose gripper was opening
+        closes again. A new plan (:meth:`set_plan`) starts from there. Returns the state left;
+        raises HoldRefused with the reason (no state yet, in failure, no table row)."""
+        if self.state is None:
+            raise HoldRefused("no robot state yet (the controller has not ticked)")
+        before = self.fsm.state
+        if before == "failure":
+            raise HoldRefused("in failure: the fallback already holds; send the reset event first")
+        if self.table.next_state(before, "hold", self.moving_limb) is None:
+            raise HoldRefused(f"the FSM table has no row for the event hold from {before!r}")
+        contacts, holds = dict(self.contacts), dict(self.holds)
+        limb = self.moving_limb
+        self.plan = None
+        self.plan_pending = False
+        self.fsm.fire(self, "hold")  # the state left tears down (stiffness, a foot's unload, ...)
+        for name, contact in contacts.items():  # the contact set stays what it was
+            if name not in self.contacts:
+                self.contacts[name] = contact
+                self.holds[name] = holds[name]
+        for name, ramp in list(self.ramps.items()):
+            if ramp.kind == "release":
+                del self.ramps[name]
+                contact = self.contacts.get(name)
+                if contact is not None:
+                    contact.scale, contact.ramp_cap = 1.0, None
+        if before == "open_gripper" and limb in HANDS and limb in self.contacts:
+            self._queued_grippers.append(GripperRequest(limb, "close", 0.0, self.time))
+        self.transition = None
+        self.transition_index = -1
+        self.moving_limb = ""
+        self.target_surface = ""
+        self.replan_needed = False
+        self.hold_here()
+        self.emit("plan_abandoned", state=before, limb=limb, contacts=sorted(self.contacts))
+        return before
+
     def reset_failure(self) -> bool:
         """Leave the failure state (external `reset` event)."""
         self.fallback_active = False
@@ -263,7 +308,7 @@ class Controller:
             state = self.predict(state, self.params.actuation_latency_s)
         self.state = state
         self.time = state.time
-        self.grippers_out = []
+        self.grippers_out, self._queued_grippers = self._queued_grippers, []
         self.wb.update(state.q, state.v)
         self._update_ft(state)
         self.fsm.step(self)

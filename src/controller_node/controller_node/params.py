@@ -27,7 +27,7 @@ class QpParams:
     failure_dir: str = param("build/qp_failures", unit="-",
                              description="failing QPs are saved here as .npz (relative to the project root)")
     max_saved_failures: int = param(50, unit="-", min=0, description="stop saving failing QPs after this many")
-    failure_grace_s: float = param(0.0, unit="s", min=0.0, description=(
+    failure_grace_s: float = param(0.2, unit="s", min=0.0, description=(
         "consecutive infeasible ticks tolerated before the FSM's qp_failure event (each one counted, saved "
         "and answered with the relaxed solve, saturated, of the current tasks): an impact can make the QP "
         "infeasible for a few ticks. 0 = fail on the first"))
@@ -221,6 +221,9 @@ class ControllerParams:
     fallback: FallbackParams = group(FallbackParams, "safe hold after a QP failure")
     compliance: ComplianceParams = group(ComplianceParams, "PWM compliance mode")
     gripper: GripperParams = group(GripperParams, "gripper states")
+
+    def __post_init__(self) -> None:
+        _check(self)  # the cross-field rules, whichever parser built it (parse_params, a node's on-set)
 
     def replace(self, **changes: Any) -> "ControllerParams":
         """Copy with dotted changes: ``params.replace(**{"qp.solver": "proxsuite"})``."""
