@@ -14,5 +14,9 @@ setup(
     zip_safe=True,
     description="Guide path, contact search, physics-constrained IK, motion primitives and their adaptation: library + nodes.",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["primitive_adaptation = planner_node.adaptation_node:main"]},
+    entry_points={"console_scripts": [
+        "guide_path = planner_node.guide_path_node:main",
+        "contact_search = planner_node.contact_search_node:main",
+        "primitive_adaptation = planner_node.adaptation_node:main",
+    ]},
 )

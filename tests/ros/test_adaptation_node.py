@@ -82,6 +82,7 @@ def test_adaptation_node_plans_requests_and_survives_bad_ones():
             [(s.phase, s.text[:100]) for s in statuses]
         busy = [s for s in statuses if s.phase == "failed"]
         assert busy and "busy" in busy[0].text and "second" in busy[0].text
+        assert busy[0].id == "second"  # the refused request's id, not the running one's (issue 20, row 9)
         progress = [s for s in statuses if s.phase == "adaptation"]
         assert all(s.id == "one_step" and 0 <= s.step <= s.n_steps for s in progress)
         (done,) = [s for s in statuses if s.phase == "done"]

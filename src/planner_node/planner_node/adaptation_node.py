@@ -1,37 +1,40 @@
-"""The `primitive_adaptation` node: a thin rclpy wrapper around the planner library.
+"""The `primitive_adaptation` node: contact plan -> whole-body plan (last stage of the pipeline).
 
 Inputs
-  - ``primitive_adaptation/request`` (std_msgs/String): a primitive-sequence request, YAML or JSON
-    mapping: ``{ladder: <name | path | spec mapping>, robot: g1, steps: 2, seed: 0, timeout_s: 120,
-    start: <fixture name, optional>, id: <free text>}``;
-  - ``contact_plan`` (climb_msgs/ContactPlan): a stance sequence from the contact search, adapted
-    transition by transition on the environment of the ``ladder`` parameter (or the plan's
-    ``environment`` when it names a ladder).
+  - ``contact_plan`` (climb_msgs/ContactPlan) carrying its plan request (request_id, request_json,
+    the pipeline of the graph): Adapt-Primitive under the multi-step search with backtracking for
+    the request (:func:`planner_node.pipeline.adapt`: robot, scenario, rungs, seed, timeout_s,
+    descend, a measured ``start`` projected onto its stance); it may change the contact plan's
+    seed holds (the summary counts them). The plan is the one the in-process climb makes for the
+    same request. A contact plan without a request (``request_json`` empty) is adapted stance by
+    stance on the environment its ``environment`` names (or the ``ladder`` parameter's);
+  - ``primitive_adaptation/request`` (std_msgs/String): the older direct request, YAML or JSON:
+    ``{ladder: <name | path | spec mapping>, robot: g1, steps: 2, seed: 0, timeout_s: 120,
+    start: <fixture name, optional>, id: <free text>}``.
 Outputs
-  - ``whole_body_plan`` (climb_msgs/WholeBodyPlan, reliable, volatile: the controller's QoS);
-  - ``primitive_adaptation/status`` (climb_msgs/ClimbStatus): phase adaptation -> done | failed,
-    step k of n, progress, text (the failure's constraint, or the error of a malformed request).
+  - ``whole_body_plan`` (climb_msgs/WholeBodyPlan, request_id + request_json of the request);
+  - ``primitive_adaptation/status`` (climb_msgs/ClimbStatus, id = the request's id): adaptation
+    (step k of n sub-tasks, every 0.5 s) -> done (text: the planning summary as JSON: plan_time_s,
+    n_stances, n_transitions, attempts, backtracks, ...) | failed (text: the constraint that
+    stopped the search, a malformed input's field and rule, or "busy": a request arriving while
+    another is planned is refused with ITS OWN id).
 
-Planning runs in a worker thread, one request at a time; a malformed request or a request while
-busy gets a ``failed`` status with the reason, the node keeps running. Parameters: the planner's
-(config/planner.yaml, node name ``primitive_adaptation``) plus ``ladder`` and ``robot`` defaults.
+Planning runs in a worker thread, one request at a time; the node keeps running whatever
+arrives. Parameters (config/nodes/primitive_adaptation.yaml): every planner setting (the climb's:
+config/planner.yaml with config/climb.yaml's planner_overrides), ``strategy`` and ``ladder``
+(:class:`planner_node.node_params.AdaptationParams`).
 """
 from __future__ import annotations
 
-import json
 import sys
-import threading
 from typing import Any
 
 import yaml
 
-from climb_core.errors import ClimbError, SpecError
-from climb_core.params import describe, flatten, parse_params
+from climb_core.errors import SpecError
 
-from .settings import NODE_NAME, PlannerSettings, load_settings
+from .settings import NODE_NAME, PlannerSettings
 
-#: [s] status publication period while planning
-STATUS_PERIOD_S = 0.5
 REQUEST_KEYS = ("ladder", "robot", "steps", "seed", "timeout_s", "start", "id")
 
 
@@ -112,113 +115,114 @@ class AdaptationService:
         return plan_from_contact_plan(robot, env, contact_plan, settings=self.settings, on_progress=on_progress)
 
 
-def main(args: list[str] | None = None) -> int:
-    from climb_core.ros_env import apply_local_dds_env
-
-    apply_local_dds_env()
-    import rclpy
-    from climb_msgs.msg import ClimbStatus, ContactPlan, WholeBodyPlan
-    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
-    from rclpy.node import Node
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+def make_node():
+    from climb_msgs.msg import ContactPlan, WholeBodyPlan
     from std_msgs.msg import String
 
     from msgs_py.contact import contact_plan_from_msg, whole_body_plan_to_msg
-    from msgs_py.stamps import make_header
+    from msgs_py.node_kit import guarded, safe_publish
+    from msgs_py.topics import qos_for
 
-    def qos(depth: int) -> QoSProfile:
-        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.VOLATILE)
+    from .node_params import AdaptationParams, node_defaults, planner_settings
+    from .pipeline import adapt, load_problem, parse_plan_request
+    from .stage_node import StageNode, check_request_strategy
 
-    class AdaptationNode(Node):
+    class AdaptationNode(StageNode):
         def __init__(self) -> None:
-            super().__init__(NODE_NAME)
-            defaults = flatten(load_settings())
-            for name, info in describe(PlannerSettings).items():
-                self.declare_parameter(name, defaults[name])  # scalars only (types: bool, int, float, str)
-            self.declare_parameter("ladder", "default")
-            flat = {name: self.get_parameter(name).value for name in describe(PlannerSettings)}
-            self.settings = parse_params(flat, PlannerSettings, NODE_NAME)
-            self.service = AdaptationService(self.settings, self.get_parameter("ladder").value)
-            self.pub_plan = self.create_publisher(WholeBodyPlan, "whole_body_plan", qos(1))
-            self.pub_status = self.create_publisher(ClimbStatus, "primitive_adaptation/status", qos(10))
-            self.create_subscription(String, "primitive_adaptation/request", self._on_request, qos(10))
-            self.create_subscription(ContactPlan, "contact_plan", self._on_contact_plan, qos(1))
-            self._busy = threading.Lock()
-            self._progress = (0, 0)
-            self._id = ""
-            self.create_timer(STATUS_PERIOD_S, self._tick)
+            super().__init__(NODE_NAME, AdaptationParams, node_defaults(NODE_NAME), "adaptation")
+            self.pub_plan = self.create_publisher(WholeBodyPlan, "whole_body_plan", qos_for("whole_body_plan"))
+            self.create_subscription(String, "primitive_adaptation/request",
+                                     guarded(self, self._on_request, "primitive_adaptation/request"),
+                                     qos_for("primitive_adaptation/request"))
+            self.create_subscription(ContactPlan, "contact_plan", guarded(self, self._on_contact_plan, "contact_plan"),
+                                     qos_for("contact_plan"))
             self.get_logger().info("primitive_adaptation ready")
 
-        def status(self, phase: str, text: str = "", step: int = 0, n: int = 0) -> None:
-            msg = ClimbStatus(header=make_header(self.get_clock().now().nanoseconds * 1e-9), id=self._id, phase=phase,
-                              step=int(step), n_steps=int(n), progress=float(step / n) if n else 0.0, text=text)
-            self.pub_status.publish(msg)
+        def _on_progress(self, k, n, _attempts) -> None:
+            self.set_progress(k, n)
 
-        def _tick(self) -> None:
-            if self._busy.locked():
-                k, n = self._progress
-                self.status("adaptation", "planning", k, n)
-
-        def _on_request(self, msg) -> None:
-            try:
-                request = parse_request(msg.data, self.settings.planning.robot, self.service.default_ladder)
-            except SpecError as exc:
-                self.status("failed", f"malformed request: {exc}")
-                return
-            self._start(lambda cb: self.service.plan_request(request, cb), request["id"])
-
+        # ---- the pipeline: a contact plan that answers a plan request
         def _on_contact_plan(self, msg) -> None:
+            rid = msg.request_id
+            if not msg.request_json:
+                self._on_bare_contact_plan(msg)
+                return
+            try:
+                req = parse_plan_request(msg.request_json)
+                if req.id != rid:
+                    raise SpecError("contact_plan.request_id", f"must be the id of its request_json ({req.id!r}), "
+                                                               f"got {rid!r}")
+                plan = contact_plan_from_msg(msg)
+            except SpecError as exc:
+                self.fail(rid, f"malformed input: {exc}")
+                return
+            if not check_request_strategy(self, rid, req.strategy, "primitive_adaptation"):
+                return
+            params = self.params
+            self.start(rid, lambda: self._adapt(req, plan, params))
+
+        def _adapt(self, req, contact_plan, params) -> None:
+            problem = load_problem(req, planner_settings(params))
+            res, summary = adapt(problem, contact_plan, on_progress=self._on_progress)
+            self._publish_result(req.id, res, summary, req.text)
+
+        def _publish_result(self, rid: str, res, summary: dict, request_json: str = "") -> None:
+            n = len(res.subtasks)
+            if res.plan is not None and res.success:
+                out = whole_body_plan_to_msg(res.plan, stamp=self.now_s())
+                out.request_id = rid
+                out.request_json = request_json
+                if safe_publish(self.pub_plan, out):
+                    self.done(rid, summary, n)
+            else:
+                self.status(rid, "failed", f"{res.failure_constraint}: {res.failure_detail}",
+                            res.report.deepest if res.report else 0, n)
+
+        # ---- legacy inputs: a contact plan without a request, primitive_adaptation/request
+        def _on_bare_contact_plan(self, msg) -> None:
+            rid = msg.request_id or "contact_plan"
             try:
                 plan = contact_plan_from_msg(msg)
             except (SpecError, ValueError) as exc:
-                self.status("failed", f"malformed contact plan: {exc}")
+                self.fail(rid, f"malformed contact plan: {exc}")
                 return
-            self._start(lambda cb: self.service.plan_contact(plan, on_progress=cb), "contact_plan")
-
-        def _start(self, job, request_id: str) -> None:
-            if not self._busy.acquire(blocking=False):
-                self.status("failed", f"busy: request {request_id!r} ignored")
+            if not check_request_strategy(self, rid, None, "primitive_adaptation"):
                 return
-            self._id = request_id
-            self._progress = (0, 0)
-            threading.Thread(target=self._run, args=(job,), daemon=True).start()
+            params = self.params
+            service = AdaptationService(planner_settings(params), params.ladder)
+            self.start(rid, lambda: self._legacy(rid, lambda: service.plan_contact(plan, on_progress=self._on_progress)))
 
-        def _run(self, job) -> None:
+        def _on_request(self, msg) -> None:
+            params = self.params
             try:
-                def progress(k, n, _):
-                    self._progress = (k, n)
+                request = parse_request(msg.data, params.planning.robot, params.ladder)
+            except SpecError as exc:
+                self.fail(_legacy_id(msg.data), f"malformed request: {exc}")
+                return
+            service = AdaptationService(planner_settings(params), params.ladder)
+            rid = request["id"]
+            self.start(rid, lambda: self._legacy(rid, lambda: service.plan_request(request, self._on_progress)))
 
-                res = job(progress)
-                if res.plan is not None and res.success:
-                    self.pub_plan.publish(whole_body_plan_to_msg(res.plan,
-                                                                 stamp=self.get_clock().now().nanoseconds * 1e-9))
-                    self.status("done", json.dumps(res.summary()), len(res.subtasks), len(res.subtasks))
-                else:
-                    self.status("failed", f"{res.failure_constraint}: {res.failure_detail}",
-                                res.report.deepest if res.report else 0, len(res.subtasks))
-            except ClimbError as exc:
-                self.status("failed", f"{exc}")
-            except Exception as exc:  # keep the node alive whatever the planner raised
-                self.get_logger().error(f"planning crashed: {exc!r}")
-                self.status("failed", f"internal error: {exc!r}")
-            finally:
-                self._busy.release()
+        def _legacy(self, rid: str, job) -> None:
+            res = job()
+            self._publish_result(rid, res, res.summary())
 
-    rclpy.init(args=args)
-    node = None
+    return AdaptationNode()
+
+
+def _legacy_id(text: str) -> str:
     try:
-        node = AdaptationNode()
-        executor = MultiThreadedExecutor(num_threads=2)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+        data = yaml.safe_load(text)
+    except Exception:  # noqa: BLE001 - any unreadable text: no id
+        return ""
+    value = data.get("id") if isinstance(data, dict) else None
+    return str(value) if isinstance(value, (str, int)) else ""
+
+
+def main(args: list[str] | None = None) -> int:
+    from msgs_py.node_kit import run_node
+
+    return run_node(make_node, args, name=NODE_NAME)
 
 
 if __name__ == "__main__":

@@ -177,3 +177,62 @@ def load_settings(path: str | pathlib.Path | None = None) -> PlannerSettings:
 def replace(settings: PlannerSettings, group_name: str, **changes) -> PlannerSettings:
     """Copy of ``settings`` with fields of one group changed (tests, scripts)."""
     return dataclasses.replace(settings, **{group_name: dataclasses.replace(getattr(settings, group_name), **changes)})
+
+
+def apply_overrides(settings: PlannerSettings, overrides: dict, where: str = "planner_overrides") -> PlannerSettings:
+    """``settings`` with dotted ``group.field`` values replaced, each validated like the YAML
+    loader does (SpecError naming ``<where>.<group.field>`` for an unknown field or a bad value)."""
+    from climb_core.errors import SpecError
+    from climb_core.params import describe, flatten, parse_params
+
+    if not isinstance(overrides, dict):
+        raise SpecError(where, "must be a mapping of dotted planner settings (group.field) to values")
+    known = describe(PlannerSettings)
+    flat = {k: v for k, v in flatten(settings).items() if k in known}
+    for key, value in overrides.items():
+        if key not in known:
+            raise SpecError(f"{where}.{key}", "unknown planner setting")
+        flat[key] = value
+    base = parse_params(flat, PlannerSettings, where)
+    if type(settings) is PlannerSettings:
+        return base
+    # a subclass (a node's parameters with the planner's groups): keep its own fields
+    return dataclasses.replace(settings, **{f.name: getattr(base, f.name) for f in dataclasses.fields(PlannerSettings)})
+
+
+#: the file whose ``climb.planner_overrides`` the planning nodes apply by default (the in-process
+#: climb applies the same ones: the graph and the fast path plan the same climbs)
+CLIMB_OVERRIDES_FILE = "config/climb.yaml"
+
+
+def read_climb_overrides(path: str | pathlib.Path = CLIMB_OVERRIDES_FILE) -> dict:
+    """The ``climb.planner_overrides`` mapping of a climb settings file ({} when the path is "")."""
+    import yaml
+
+    from climb_core.errors import SpecError
+    from climb_core.ros_env import project_root
+
+    if not str(path):
+        return {}
+    p = pathlib.Path(path)
+    if not p.is_absolute():
+        p = project_root() / p
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise SpecError("planner_overrides_file", f"cannot read {p}: {exc}") from None
+    climb = doc.get("climb") if isinstance(doc, dict) else None
+    overrides = (climb or {}).get("planner_overrides") if isinstance(climb, dict) else None
+    if overrides is None:
+        return {}
+    if not isinstance(overrides, dict):
+        raise SpecError("planner_overrides_file", f"{p}: climb.planner_overrides must be a mapping")
+    return dict(overrides)
+
+
+def climb_settings(overrides_file: str | pathlib.Path = CLIMB_OVERRIDES_FILE,
+                   base: PlannerSettings | None = None) -> PlannerSettings:
+    """The planner settings the climb plans with: config/planner.yaml (or ``base``) with the
+    ``climb.planner_overrides`` of ``overrides_file`` applied ("" for none)."""
+    return apply_overrides(base or load_settings(), read_climb_overrides(overrides_file),
+                           where=f"{overrides_file or 'planner_overrides'}:climb.planner_overrides")

@@ -1,0 +1,123 @@
+"""The rclpy side shared by the planning nodes (guide_path, contact_search, primitive_adaptation).
+
+A stage node declares its parameters from its schema (descriptions, ranges, validation on set:
+msgs_py.node_kit), publishes ClimbStatus on ``<stage>/status`` and runs one request at a time in a
+worker thread. Every status carries the id of the request it concerns, a refused one included:
+
+- the request's phase (``guide_path``, ``contact_search``, ``adaptation``) when its work starts and
+  every ``STATUS_PERIOD_S`` while it runs (step k of n where the stage counts them);
+- ``done`` with the stage's JSON summary as text, after the product was published;
+- ``failed`` with the reason: a malformed input (field and rule), a strategy not implemented, a
+  violated constraint, "busy" (another request is being planned: this one is refused, not
+  queued), or an internal error (the node keeps serving).
+
+Imports rclpy: only the node modules' main() import this module.
+"""
+from __future__ import annotations
+
+import json
+import threading
+import time
+from typing import Any, Callable
+
+from climb_msgs.msg import ClimbStatus
+from rclpy.node import Node
+
+from climb_core.errors import ClimbError, InfeasibleError, SpecError
+from msgs_py.node_kit import Worker, declare_from_schema, guarded, safe_publish
+from msgs_py.stamps import make_header
+from msgs_py.topics import qos_for
+
+#: [s] period of the progress status while a request is worked on
+STATUS_PERIOD_S = 0.5
+
+
+class StageNode(Node):
+    """A planning stage: parameters, status topic, worker, request bookkeeping."""
+
+    def __init__(self, node_name: str, schema: type, defaults: Any, phase: str, *,
+                 read_only: tuple[str, ...] = ()) -> None:
+        super().__init__(node_name)
+        self.phase = phase
+        self.params = declare_from_schema(self, schema, defaults, read_only=read_only, on_change=self._set_params)
+        self.status_topic = f"{node_name}/status"
+        self.pub_status = self.create_publisher(ClimbStatus, self.status_topic, qos_for(self.status_topic))
+        self.worker = Worker(self, f"{node_name}_worker", on_error=self._job_crashed)
+        self._progress = (0, 0)
+        self._progress_lock = threading.Lock()
+        self.create_timer(STATUS_PERIOD_S, guarded(self, self._tick, "status_timer"))
+
+    # -------------------------------------------------------------- parameters
+    def _set_params(self, new: Any) -> None:
+        self.params = new
+
+    # -------------------------------------------------------------- status
+    def now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def status(self, request_id: str, phase: str, text: str = "", step: int = 0, n: int = 0) -> bool:
+        msg = ClimbStatus(header=make_header(self.now_s()), id=str(request_id), phase=phase, step=int(max(0, step)),
+                          n_steps=int(max(0, n)), progress=float(min(1.0, step / n)) if n else 0.0,
+                          text=text[:20000])
+        return safe_publish(self.pub_status, msg)
+
+    def fail(self, request_id: str, text: str) -> None:
+        self.get_logger().warning(f"request {request_id!r} failed: {text[:500]}")
+        self.status(request_id, "failed", text)
+
+    def set_progress(self, k: int, n: int) -> None:
+        with self._progress_lock:
+            self._progress = (int(k), int(n))
+
+    def _tick(self) -> None:
+        rid = self.worker.current_id
+        if rid is not None:
+            with self._progress_lock:
+                k, n = self._progress
+            self.status(rid, self.phase, "planning", k, n)
+
+    # -------------------------------------------------------------- requests
+    def start(self, request_id: str, job: Callable[[], None]) -> bool:
+        """Run ``job`` in the worker for ``request_id``; refuse it (a failed status with its own id)
+        when another request is being worked on."""
+        running = self.worker.current_id
+        if not self.worker.submit(lambda: self._run(request_id, job), request_id):
+            self.fail(request_id, f"busy: {self.get_name()} is working on request {running or '?'!r}; "
+                                  f"request {request_id!r} refused (one request at a time)")
+            return False
+        return True
+
+    def _run(self, request_id: str, job: Callable[[], None]) -> None:
+        self.set_progress(0, 0)
+        self.status(request_id, self.phase, "started")
+        try:
+            job()
+        except SpecError as exc:
+            self.fail(request_id, f"malformed input: {exc}")
+        except InfeasibleError as exc:
+            self.fail(request_id, str(exc))
+        except ClimbError as exc:
+            self.fail(request_id, str(exc))
+
+    def _job_crashed(self, request_id: str, exc: BaseException) -> None:
+        self.fail(request_id, f"internal error: {type(exc).__name__}: {exc}")
+
+    def done(self, request_id: str, summary: dict, n: int = 0) -> None:
+        self.status(request_id, "done", json.dumps(summary), n, n)
+
+
+def check_request_strategy(node: StageNode, request_id: str, request_strategy: str | None, stage: str) -> bool:
+    """False (and a failed status naming the reason) when the effective strategy is not runnable."""
+    from .pipeline import check_strategy
+
+    strategy = request_strategy or node.params.strategy
+    try:
+        check_strategy(strategy, stage)
+    except (SpecError, InfeasibleError) as exc:
+        node.fail(request_id, str(exc))
+        return False
+    return True
+
+
+def elapsed(t0: float) -> float:
+    return round(time.perf_counter() - t0, 3)

@@ -1,0 +1,296 @@
+"""The three planning nodes (guide_path, contact_search, primitive_adaptation) as separate
+processes, driven over topics as the coordinator drives them.
+
+One module-scoped graph: the nodes started with their config/nodes/*.yaml, a client node in this
+process publishing plan/request and recording guide_path, contact_plan, whole_body_plan and the
+three status topics.
+
+- a plan request for the default ladder, 2 rungs, G1 passes through every stage in order, each
+  product carrying the request's id and JSON; the whole-body plan is the in-process climb's plan
+  for the same request (climb_coordinator.climb.plan); the adaptation's `done` text is the
+  planning summary;
+- a replan from a measured state (`start`: q and stance) plans what the in-process replanner plans;
+- bad requests: a malformed one fails at guide_path naming the field, `strategy: search` is refused
+  with the reason, a contact plan arriving while the adaptation is busy is refused with ITS id;
+- SIGINT mid-planning: every node exits 0 without a traceback.
+Plus the YAML files say what the code's defaults are.
+"""
+from __future__ import annotations
+
+import json
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.ros
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+NODES = {"guide_path": "planner_node.guide_path_node", "contact_search": "planner_node.contact_search_node",
+         "primitive_adaptation": "planner_node.adaptation_node"}
+STATUS = [f"{n}/status" for n in NODES]
+REQUEST = {"id": "climb-1", "robot": "g1", "scenario": "default", "rungs": 2, "seed": 0, "timeout_s": 120,
+           "descend": False}
+
+
+def test_node_yaml_files_hold_the_code_defaults():
+    from climb_core.params import load_params
+
+    from planner_node.node_params import (AdaptationParams, ContactSearchParams, GuidePathParams,
+                                          node_defaults)
+
+    for name, schema in (("guide_path", GuidePathParams), ("contact_search", ContactSearchParams),
+                         ("primitive_adaptation", AdaptationParams)):
+        assert load_params(ROOT / "config" / "nodes" / f"{name}.yaml", schema, name) == node_defaults(name), name
+
+
+class Client:
+    """A client node in this process: publishes requests, records what the stages publish."""
+
+    def __init__(self, procs):
+        import rclpy
+        from climb_msgs.msg import ClimbStatus, ContactPlan, GuidePath, WholeBodyPlan
+        from rclpy.executors import SingleThreadedExecutor
+        from std_msgs.msg import String
+
+        from msgs_py.topics import qos_for
+
+        self.procs = procs
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("planning_test_client", context=self.context)
+        self.log: list[tuple[str, object]] = []  # (topic, message) in arrival order
+        for topic, cls in (("guide_path", GuidePath), ("contact_plan", ContactPlan),
+                           ("whole_body_plan", WholeBodyPlan)):
+            self.node.create_subscription(cls, topic, lambda m, t=topic: self.log.append((t, m)), qos_for(topic))
+        for topic in STATUS:
+            self.node.create_subscription(ClimbStatus, topic, lambda m, t=topic: self.log.append((t, m)),
+                                          qos_for(topic))
+        self.pub_request = self.node.create_publisher(String, "plan/request", qos_for("plan/request"))
+        self.pub_contact = self.node.create_publisher(ContactPlan, "contact_plan", qos_for("contact_plan"))
+        self.String = String
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def spin_until(self, predicate, timeout_s: float, what: str = "") -> None:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.05)
+            if predicate():
+                return
+            for name, p in self.procs.items():
+                assert p.poll() is None, f"{name} died: {p.stdout.read().decode()[-3000:]}"
+        raise AssertionError(f"timeout waiting for {what}: " + "; ".join(
+            f"{t} {getattr(m, 'id', getattr(m, 'request_id', ''))} {getattr(m, 'phase', '')} "
+            f"{getattr(m, 'text', '')[:200]}" for t, m in self.log[-12:]))
+
+    def request(self, data) -> None:
+        self.pub_request.publish(self.String(data=data if isinstance(data, str) else json.dumps(data)))
+
+    def of(self, topic: str, rid: str) -> list:
+        return [m for t, m in self.log if t == topic and (getattr(m, "request_id", None) == rid
+                                                          or getattr(m, "id", None) == rid)]
+
+    def status(self, rid: str, phase: str | None = None) -> list:
+        return [(t, m) for t, m in self.log if t in STATUS and m.id == rid and (phase is None or m.phase == phase)]
+
+    def close(self) -> None:
+        import rclpy
+
+        rclpy.try_shutdown(context=self.context)
+
+
+@pytest.fixture(scope="module")
+def graph():
+    from climb_core.ros_env import local_dds_env
+
+    env = local_dds_env()
+    procs = {name: subprocess.Popen([sys.executable, "-m", module, "--ros-args", "--params-file",
+                                     str(ROOT / "config" / "nodes" / f"{name}.yaml")],
+                                    env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+             for name, module in NODES.items()}
+    client = Client(procs)
+    try:
+        client.spin_until(lambda: client.pub_request.get_subscription_count() > 0
+                          and client.pub_contact.get_subscription_count() > 0
+                          and all(client.node.count_publishers(t) > 0 for t in STATUS)
+                          and client.node.count_publishers("whole_body_plan") > 0, 90.0, "the nodes")
+        time.sleep(1.0)  # discovery in both directions
+        yield client
+    finally:
+        client.close()
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+
+
+def in_process_plan(rungs: int, seed: int, timeout_s: float, start=None):
+    """What climb_coordinator.climb plans for the request (its first plan, or a replan from a
+    measured state as its replanner does)."""
+    from climb_core.environment import build_environment
+    from climb_core.ladder import load_scenario
+    from climb_core.robot import load_robot
+    from climb_coordinator.climb import ClimbRequest, plan
+    from climb_coordinator.settings import apply_planner_overrides, load_climb_settings
+    from planner_node.climb_planner import plan_climb
+    from planner_node.primitives import load_library
+    from planner_node.replan import measured_start
+    from planner_node.settings import load_settings
+
+    robot = load_robot("g1")
+    env = build_environment(load_scenario("default"))
+    psettings = apply_planner_overrides(load_settings(), load_climb_settings().planner_overrides)
+    p = psettings.planning
+    library = load_library(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
+    if start is None:
+        req = ClimbRequest(ladder="default", robot="g1", rungs=rungs, seed=seed, plan_timeout_s=timeout_s)
+        return plan(req, robot, env, library, psettings, rungs)
+    q, stance = start
+    q0 = measured_start(robot, env, q, stance, psettings)
+    return plan_climb(robot, env, rungs, start=(q0, stance), library=library, settings=psettings, seed=seed,
+                      timeout_s=timeout_s)
+
+
+def assert_same_plan(msg, expected) -> None:
+    from msgs_py.contact import whole_body_plan_from_msg
+
+    got = whole_body_plan_from_msg(msg)
+    assert len(got.transitions) == len(expected.transitions)
+    assert [t.primitive for t in got.transitions] == [t.primitive for t in expected.transitions]
+    for a, b in zip(got.transitions, expected.transitions):
+        assert a.path.shape == b.path.shape
+        assert np.allclose(a.path, b.path, atol=1e-9) and np.allclose(a.times, b.times, atol=1e-9)
+        assert [h.env_surface for h in a.target_stance.holds] == [h.env_surface for h in b.target_stance.holds]
+    assert np.allclose(got.transitions[0].path[0], expected.transitions[0].path[0], atol=1e-9)
+    assert np.allclose(got.transitions[-1].path[-1], expected.transitions[-1].path[-1], atol=1e-9)
+
+
+def test_a_request_passes_every_stage_in_order_and_plans_the_in_process_climb(graph):
+    client = graph
+    client.request(REQUEST)
+    rid = REQUEST["id"]
+    client.spin_until(lambda: client.of("whole_body_plan", rid) or client.status(rid, "failed"), 240.0,
+                      "the whole-body plan")
+    assert not client.status(rid, "failed"), client.status(rid, "failed")[0][1].text
+    order = [t for t, m in client.log if t in ("guide_path", "contact_plan", "whole_body_plan")]
+    assert order == ["guide_path", "contact_plan", "whole_body_plan"]
+    products = [m for t, m in client.log if t in ("guide_path", "contact_plan", "whole_body_plan")]
+    for m in products:
+        assert m.request_id == rid and json.loads(m.request_json) == REQUEST
+    client.spin_until(lambda: len(client.status(rid, "done")) == 3, 10.0, "three done statuses")
+    # each stage: its phase, then done, all with the request's id
+    for topic, phase in zip(STATUS, ("guide_path", "contact_search", "adaptation")):
+        phases = [m.phase for t, m in client.status(rid) if t == topic]
+        assert phases[0] == phase and phases[-1] == "done", (topic, phases)
+    texts = {t: json.loads(m.text) for t, m in client.status(rid, "done")}
+    guide, contact, summary = (texts[s] for s in STATUS)
+    gp, cp, wb = products
+    assert guide["n_milestones"] == len(gp.milestones) == 22  # start + approach 5 + mount 2 + 2 cycles of 7
+    assert contact["n_stances"] == len(cp.stances) == 22 and contact["n_feasible"] >= 1
+    assert summary["success"] is True and summary["request_id"] == rid
+    assert summary["n_stances"] == len(wb.transitions) + 1 and summary["plan_time_s"] > 0
+    assert summary["rungs_reached"] == 2
+    # the seed stances climb the actual rungs: the last one has both feet on rung 2
+    last = {h.limb: h.env_surface for h in cp.stances[-1].holds}
+    assert last["left_foot"] == last["right_foot"] == "rung_2"
+    # the graph's plan is the in-process climb's plan
+    expected = in_process_plan(2, REQUEST["seed"], REQUEST["timeout_s"])
+    assert expected.success
+    assert_same_plan(wb, expected.plan)
+
+
+def test_a_replan_from_a_measured_state_plans_what_the_in_process_replanner_plans(graph):
+    from msgs_py.contact import whole_body_plan_from_msg
+    from planner_node.plan_io import stance_to_dict
+
+    client = graph
+    first = whole_body_plan_from_msg(client.of("whole_body_plan", REQUEST["id"])[-1])
+    # the state after the first cycle (mount = 7 transitions, then 7 per cycle), a few mm off
+    t = first.transitions[13]
+    q = np.asarray(t.path[-1], dtype=float).copy()
+    q[:3] += [0.002, -0.001, 0.001]
+    request = dict(REQUEST, id="climb-1-replan-1", rungs=1, start={"q": q.tolist(), "stance": stance_to_dict(
+        t.target_stance)})
+    client.request(request)
+    rid = request["id"]
+    client.spin_until(lambda: client.of("whole_body_plan", rid) or client.status(rid, "failed"), 240.0,
+                      "the replanned whole-body plan")
+    assert not client.status(rid, "failed"), client.status(rid, "failed")[0][1].text
+    client.spin_until(lambda: client.status(rid, "done") and any(
+        t == "primitive_adaptation/status" for t, _ in client.status(rid, "done")), 10.0, "done")
+    summary = json.loads([m for t, m in client.status(rid, "done") if t == "primitive_adaptation/status"][0].text)
+    assert summary["success"] and 0 < summary["start_projection_mm"] < 50
+    expected = in_process_plan(1, REQUEST["seed"], REQUEST["timeout_s"], start=(q, t.target_stance))
+    assert expected.success
+    assert_same_plan(client.of("whole_body_plan", rid)[-1], expected.plan)
+
+
+def test_malformed_requests_fail_at_the_guide_path_naming_the_field(graph):
+    client = graph
+    client.request(dict(REQUEST, id="bad-rungs", rungs=-1))
+    client.request(dict(REQUEST, id="bad-key", rung=2))
+    client.request("{not json")
+    client.request(dict(REQUEST, id="bad-ladder", scenario="no_such_ladder"))
+    client.request(dict(REQUEST, id="bad-spec", scenario="ladder:\n  rung_spacing: -1.0\n"))
+    client.spin_until(lambda: all(client.status(r, "failed") for r in ("bad-rungs", "bad-key", "", "bad-ladder",
+                                                                        "bad-spec")), 60.0, "five failures")
+    text = {r: client.status(r, "failed")[0][1].text for r in ("bad-rungs", "bad-key", "", "bad-ladder", "bad-spec")}
+    assert "request.rungs" in text["bad-rungs"] and ">= 1" in text["bad-rungs"]
+    assert "request.rung" in text["bad-key"] and "unknown field" in text["bad-key"]
+    assert "request" in text[""] and "JSON" in text[""]
+    assert "request.scenario" in text["bad-ladder"] and "no_such_ladder" in text["bad-ladder"]
+    assert "request.scenario.ladder" in text["bad-spec"]
+    for r in text:
+        assert all(t == "guide_path/status" for t, _ in client.status(r, "failed"))
+        assert not client.of("guide_path", r) if r else True
+
+
+def test_the_search_strategy_is_refused_with_the_reason(graph):
+    client = graph
+    client.request(dict(REQUEST, id="search-1", strategy="search"))
+    client.spin_until(lambda: client.status("search-1", "failed"), 30.0, "the refusal")
+    (topic, msg), = client.status("search-1", "failed")
+    assert topic == "guide_path/status"
+    assert "strategy" in msg.text and "search" in msg.text and "not implemented" in msg.text
+    assert not client.of("guide_path", "search-1")
+
+
+def test_a_contact_plan_while_the_adaptation_is_busy_is_refused_with_its_own_id(graph):
+    client = graph
+    request = dict(REQUEST, id="busy-a")
+    client.request(request)
+    client.spin_until(lambda: client.of("contact_plan", "busy-a"), 60.0, "busy-a's contact plan")
+    client.spin_until(lambda: any(t == "primitive_adaptation/status" for t, _ in
+                                  client.status("busy-a", "adaptation")), 30.0, "busy-a planning")
+    second = client.of("contact_plan", "busy-a")[-1]
+    second.request_id = "busy-b"
+    second.request_json = json.dumps(dict(REQUEST, id="busy-b"))
+    client.pub_contact.publish(second)
+    client.spin_until(lambda: client.status("busy-b", "failed"), 30.0, "the refusal")
+    (topic, refusal), = client.status("busy-b", "failed")
+    assert topic == "primitive_adaptation/status"
+    assert "busy" in refusal.text and "busy-a" in refusal.text and "busy-b" in refusal.text
+    client.spin_until(lambda: client.of("whole_body_plan", "busy-a"), 240.0, "busy-a's plan")
+    assert not client.of("whole_body_plan", "busy-b")
+    # the refusal did not disturb the running request's statuses
+    assert all(m.id == "busy-a" for t, m in client.log if t == "primitive_adaptation/status" and m.phase != "failed"
+               and m.id.startswith("busy"))
+
+
+def test_sigint_mid_planning_exits_every_node_cleanly(graph):
+    client = graph
+    client.request(dict(REQUEST, id="interrupted"))
+    client.spin_until(lambda: any(t == "primitive_adaptation/status" for t, _ in
+                                  client.status("interrupted", "adaptation")), 60.0, "the adaptation planning")
+    for p in client.procs.values():
+        p.send_signal(signal.SIGINT)
+    for name, p in client.procs.items():
+        out, _ = p.communicate(timeout=30)
+        text = out.decode()
+        assert p.returncode == 0, f"{name}: {text[-3000:]}"
+        assert "Traceback" not in text, f"{name}: {text[-3000:]}"
