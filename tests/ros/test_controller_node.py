@@ -94,6 +94,43 @@ def check_hand_transfer_run(r: dict) -> None:
     assert 0.0 < r["diag"]["latency_p50_ms"] < 20.0
 
 
+def test_controller_signalled_mid_lockstep_exits_0_without_traceback():
+    """Issue 20 row 1: SIGINT / SIGTERM to a controller in lock-step with the bridge exited 1 with
+    a traceback (RCLError: publisher's context is invalid) in 2 of 7 stops. The controller is
+    signalled at a random moment of the running lock-step (mid-tick likely: it computes most of
+    each period), 4 times, restarted each time against the same bridge."""
+    import random
+    import signal
+
+    from climb_msgs.msg import ControllerState
+    from harness import PARAMS, Client, NodeProcess
+
+    rng = random.Random(20)
+    bridge = NodeProcess.module("sim_bridge.node", "--params-file", str(PARAMS / "sim_bridge.yaml"),
+                                "-p", "max_ticks:=1000000", "-p", "initial_posture:=ladder_4_contacts",
+                                "-p", "execution:=lockstep", name="sim_bridge")
+    client = Client("signal_test")
+    try:
+        states = client.subscribe(ControllerState, "controller/state", depth=50)
+        for k, sig in enumerate((signal.SIGINT, signal.SIGTERM, signal.SIGINT, signal.SIGTERM)):
+            controller = NodeProcess.module("controller_node.node", "--params-file", str(PARAMS / "controller.yaml"),
+                                            "-p", "initial_stance:=ladder_4_contacts", name=f"controller_{k}")
+            try:
+                states.clear()
+                assert client.spin_until(lambda: len(states) >= 20, 120.0, [controller, bridge]), controller.tail()
+                client.spin(rng.uniform(0.0, 1.0))
+                assert controller.alive(), controller.tail()
+                code = controller.stop(sig)
+                assert code == 0 and "Traceback" not in controller.output(), (sig, controller.tail())
+            finally:
+                controller.close()
+        assert bridge.alive(), bridge.tail()
+    finally:
+        client.close()
+        bridge.stop()
+        bridge.close()
+
+
 # ------------------------------------------------------------------------------------------------
 # bad requests to a lone controller (issue 20 rows 2, 4, 6; the hold service refused when it cannot
 # hold): each is refused with the reason, the process keeps running and serving
