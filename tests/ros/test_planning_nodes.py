@@ -12,7 +12,8 @@ three status topics.
 - a replan from a measured state (`start`: q and stance) plans what the in-process replanner plans;
 - bad requests: a malformed one fails at guide_path naming the field, `strategy: search` is refused
   with the reason, a contact plan arriving while the adaptation is busy is refused with ITS id;
-- SIGINT mid-planning: every node exits 0 without a traceback.
+- the strategy parameter: validated on set, `search` refused;
+- SIGTERM / SIGINT mid-planning: every node exits 0 without a traceback.
 Plus the YAML files say what the code's defaults are.
 """
 from __future__ import annotations
@@ -46,6 +47,52 @@ def test_node_yaml_files_hold_the_code_defaults():
     for name, schema in (("guide_path", GuidePathParams), ("contact_search", ContactSearchParams),
                          ("primitive_adaptation", AdaptationParams)):
         assert load_params(ROOT / "config" / "nodes" / f"{name}.yaml", schema, name) == node_defaults(name), name
+
+
+@pytest.mark.parametrize("change, field", [
+    ({"rungs": 0}, "request.rungs"), ({"rungs": 1.5}, "request.rungs"), ({"id": ""}, "request.id"),
+    ({"seed": -1}, "request.seed"), ({"timeout_s": 0}, "request.timeout_s"), ({"descend": "yes"}, "request.descend"),
+    ({"strategy": "dfs"}, "request.strategy"), ({"robot": "../g1"}, "request.robot"),
+    ({"start": {"q": [0.0]}}, "request.start"), ({"start": {"q": [float("nan")], "stance": {}}}, "request.start.q"),
+    ({"mode": "qp"}, "request.mode")])
+def test_plan_requests_are_checked_field_by_field(change, field):
+    from climb_core.errors import SpecError
+    from planner_node.pipeline import parse_plan_request
+
+    with pytest.raises(SpecError) as err:
+        parse_plan_request(json.dumps(dict(REQUEST, **change)))
+    assert err.value.field == field
+    assert parse_plan_request(json.dumps(REQUEST)).rungs == 2
+
+
+def test_a_request_never_makes_a_node_read_a_file_and_a_short_ladder_is_refused():
+    from climb_core.errors import InfeasibleError, SpecError
+    from planner_node.node_params import stage_settings
+    from planner_node.pipeline import check_request, load_problem, parse_plan_request, seed_sequence
+
+    for scenario in ("config/ladders/default.yaml", "/etc/passwd", "no_such_ladder"):
+        with pytest.raises(SpecError) as err:
+            check_request(parse_plan_request(json.dumps(dict(REQUEST, scenario=scenario))))
+        assert err.value.field == "request.scenario"
+    problem = load_problem(parse_plan_request(json.dumps(dict(REQUEST, rungs=40))), stage_settings())
+    with pytest.raises(InfeasibleError) as err:
+        seed_sequence(problem)
+    assert err.value.constraint == "no_target"
+
+
+def test_the_seed_sequence_of_a_climb_and_back_down_retraces_the_cycles():
+    from planner_node.node_params import stage_settings
+    from planner_node.pipeline import load_problem, parse_plan_request, seed_sequence
+
+    problem = load_problem(parse_plan_request(json.dumps(dict(REQUEST, rungs=1, descend=True))), stage_settings())
+    q0, stance0, steps = seed_sequence(problem)
+    up = [s for s in steps if s.kind != "descend"]
+    down = [s for s in steps if s.kind == "descend"]
+    assert len(up) == 14 and len(down) == 7  # approach 5 + mount 2 + one cycle of 7, then that cycle back
+    feet = {h.limb: h.env_surface for h in up[-1].stance.holds if h.limb.endswith("foot")}
+    assert feet == {"left_foot": "rung_1", "right_foot": "rung_1"}
+    assert [h.env_surface for h in down[-1].stance.holds] == [h.env_surface for h in up[6].stance.holds]
+    assert down[0].primitive == "descend:" + up[-1].primitive
 
 
 class Client:
@@ -282,13 +329,44 @@ def test_a_contact_plan_while_the_adaptation_is_busy_is_refused_with_its_own_id(
                and m.id.startswith("busy"))
 
 
-def test_sigint_mid_planning_exits_every_node_cleanly(graph):
+def set_parameter(client, node_name: str, name: str, value: str):
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    cli = client.node.create_client(SetParameters, f"/{node_name}/set_parameters")
+    try:
+        client.spin_until(lambda: cli.service_is_ready(), 20.0, f"{node_name}/set_parameters")
+        future = cli.call_async(SetParameters.Request(parameters=[Parameter(name=name, value=ParameterValue(
+            type=ParameterType.PARAMETER_STRING, string_value=value))]))
+        client.spin_until(future.done, 20.0, "the set_parameters answer")
+        return future.result().results[0]
+    finally:
+        client.node.destroy_client(cli)
+
+
+def test_the_strategy_parameter_is_validated_and_search_refused(graph):
+    client = graph
+    bad = set_parameter(client, "contact_search", "strategy", "banana")
+    assert not bad.successful and "strategy" in bad.reason and "primitives" in bad.reason
+    assert set_parameter(client, "guide_path", "strategy", "search").successful
+    try:
+        request = dict(REQUEST, id="search-2")
+        del request["descend"]
+        client.request(request)  # no strategy in the request: the node's parameter decides
+        client.spin_until(lambda: client.status("search-2", "failed"), 30.0, "the refusal")
+        (topic, msg), = client.status("search-2", "failed")
+        assert topic == "guide_path/status" and "not implemented" in msg.text
+    finally:
+        assert set_parameter(client, "guide_path", "strategy", "primitives").successful
+
+
+def test_signals_mid_planning_exit_every_node_cleanly(graph):
     client = graph
     client.request(dict(REQUEST, id="interrupted"))
     client.spin_until(lambda: any(t == "primitive_adaptation/status" for t, _ in
                                   client.status("interrupted", "adaptation")), 60.0, "the adaptation planning")
-    for p in client.procs.values():
-        p.send_signal(signal.SIGINT)
+    for name, p in client.procs.items():  # SIGTERM to the planning one, SIGINT to the others
+        p.send_signal(signal.SIGTERM if name == "primitive_adaptation" else signal.SIGINT)
     for name, p in client.procs.items():
         out, _ = p.communicate(timeout=30)
         text = out.decode()
