@@ -1,0 +1,414 @@
+"""The climb as a session over three ports (no ROS, no simulator here).
+
+    session = ClimbSession(request, settings, plans=<PlanSource>, executor=<Executor>, judge=<Judge>)
+    summary = session.run()      # the JSON summary of shared/specs/ladder_spec.md ("Results")
+
+- **PlanSource** ``plan(steps, start=None) -> PlanOutcome``: a plan of ``steps`` climbing cycles
+  from the start fixture, or from ``start = (q measured, stance held)`` (a replan).
+- **Executor**: ``start(plan)`` hands a plan over, ``run(budget_s, stop)`` executes until the FSM
+  is in one of ``stop`` (after picking the plan), a fall, a fault (dead node, controller failure,
+  cancel) or ``budget_s`` of sim time; ``settle(duration_s)``, ``measured_q()``, ``hold()`` and
+  ``report()`` (timing figures for the summary).
+- **Judge** ``feet_rungs()``, ``grasps()``, ``fell()``: the simulator's ground truth (in process:
+  PyBullet's contact points; in the graph: the bridge's ``sim/contacts`` topic).
+
+Two adapters implement the ports: in process (climb_coordinator.climb: planner library,
+InProcessRunner, judge.py against the backend) and over ROS (climb_coordinator.coordinator_node:
+plan/request -> ... -> whole_body_plan, controller/state, sim/contacts). The decisions are here, ONE
+code path for both: request checks, when to replan (``plan_cycles`` at a hold, ``replan_needed``
+from the measured state, bounded), how a run ends and the summary.
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+from climb_core.contact import FEET, Stance, WholeBodyPlan
+from climb_core.errors import SpecError
+
+MODES = ("qp", "compliance")
+#: FSM states at which a run stops and the session decides
+STOP_STATES = ("hold", "failure", "replan_needed")
+#: replan attempts after ``replan_needed`` (a guarded search that found no contact) per climb
+MAX_FORCED_REPLANS = 2
+
+
+@dataclass
+class ClimbRequest:
+    ladder: Any = "default"  # name in config/ladders/, a spec file, YAML text or a Scenario
+    robot: str = "g1"
+    rungs: int = 2  # climbing cycles after the mount (feet end on rung N)
+    mode: str = "qp"  # qp | compliance
+    out_dir: Any = None  # bag (and plots) go here; None: no files (in process)
+    seed: int | None = None  # planner seed (default: config/planner.yaml)
+    bag: bool = True
+    snapshots: int = 0  # film strip frames to capture (0: none)
+    plan_timeout_s: float | None = None
+    controller_overrides: dict = field(default_factory=dict)
+    max_transitions: int | None = None  # execute only the plan's first k transitions (None: all)
+    descend: bool = False  # climb `rungs` rungs, then climb back down to the ground
+    plan_cycles: int | None = None  # plan this many cycles at a time, the next ones from the reached state
+    #: 1: every command acts one control period late (the bridge's lockstep.command_delay_ticks);
+    #: the controller then computes each command for the state one period ahead
+    #: (actuation_latency_s), unless controller_overrides set it
+    command_delay_ticks: int = 0
+    max_forced_replans: int = MAX_FORCED_REPLANS
+
+
+def ladder_name(ladder: Any) -> str:
+    if isinstance(ladder, str):
+        return ladder if "\n" not in ladder else "custom"
+    return getattr(ladder, "name", "") or "custom"
+
+
+def base_summary(req: ClimbRequest) -> dict:
+    return {"success": False, "failure_reason": "", "robot": req.robot, "ladder": ladder_name(req.ladder),
+            "rungs_requested": int(req.rungs), "rungs_reached": 0, "plan_time_s": 0.0, "n_stances": 0,
+            "sim_time_s": 0.0, "fell": False, "control_tick_ms": None, "bag": "", "mode": req.mode}
+
+
+def validate(req: ClimbRequest) -> None:
+    """The request's own fields (SpecError naming the field and the rule)."""
+    if req.mode not in MODES:
+        raise SpecError("mode", f"must be one of {', '.join(MODES)}, got {req.mode!r}")
+    if isinstance(req.rungs, bool) or not isinstance(req.rungs, int) or req.rungs < 1:
+        raise SpecError("rungs", f"must be an integer >= 1, got {req.rungs!r}")
+    if req.snapshots < 0:
+        raise SpecError("snapshots", f"must be >= 0, got {req.snapshots}")
+    if req.max_transitions is not None and req.max_transitions < 1:
+        raise SpecError("max_transitions", f"must be >= 1 or None, got {req.max_transitions}")
+    if req.plan_cycles is not None:
+        if isinstance(req.plan_cycles, bool) or not isinstance(req.plan_cycles, int) or req.plan_cycles < 1:
+            raise SpecError("plan_cycles", f"must be an integer >= 1 or None, got {req.plan_cycles!r}")
+        if req.descend:
+            raise SpecError("plan_cycles", "replanning during a climb and back down is not supported: use one")
+    if isinstance(req.command_delay_ticks, bool) or req.command_delay_ticks not in (0, 1):
+        raise SpecError("command_delay_ticks", f"must be 0 or 1, got {req.command_delay_ticks!r}")
+
+
+@functools.lru_cache(maxsize=8)
+def _hands_above_feet_height(robot: str, strategy: str, primitives_dir: str) -> float:
+    from planner_node.primitives import load_library
+
+    return float(load_library(robot, strategy, primitives_dir or None).hands_above_feet_height)
+
+
+def check_request(req: ClimbRequest) -> Any:
+    """Everything a climb request can be refused for, checked at once (no model loaded):
+    the request's fields, an unknown robot, an invalid scenario spec (field and rule), a target
+    rung the ladder cannot give that robot (its hands hold a rung ``hands_above_feet_height``
+    above the feet). Returns the Scenario; SpecError(field, rule) on a refusal."""
+    from climb_core.environment import build_environment
+    from climb_core.ladder import load_scenario
+    from climb_core.robot import available_robots
+
+    validate(req)
+    known = available_robots()
+    if req.robot not in known:
+        raise SpecError("robot", f"unknown robot {req.robot!r} (known: {', '.join(known)})")
+    scenario = load_scenario(req.ladder)
+    if getattr(scenario, "ladder", None) is None:
+        raise SpecError("scenario.ladder", "the climb needs a scenario with a ladder block")
+    from planner_node.settings import load_settings
+
+    p = load_settings().planning
+    try:
+        gap = _hands_above_feet_height(req.robot, p.strategy, str(p.primitives_dir or ""))
+    except SpecError as exc:
+        raise SpecError("robot", f"robot {req.robot!r} cannot climb: {exc}") from None
+    env = build_environment(scenario)
+    tops = np.array([env.surfaces[f"rung_{k}"].top_z for k in range(1, env.n_rungs + 1)])
+    spacing = float(np.min(np.diff(tops))) if len(tops) > 1 else 0.25
+    # the highest rung both feet can stand on: a rung must be left for the hands above it
+    top_feet = 0
+    for k in range(1, env.n_rungs + 1):
+        if tops[k - 1] + gap <= tops[-1] + 0.5 * spacing:
+            top_feet = k
+    if req.rungs > top_feet:
+        raise SpecError("rungs", f"must be <= {top_feet} on this ladder for {req.robot}: its hands hold a rung "
+                                 f"{gap:.2f} m above its feet and the ladder has {env.n_rungs} rungs, got {req.rungs}")
+    return scenario
+
+
+# ------------------------------------------------------------------------------------------ ports
+
+
+@dataclass
+class PlanOutcome:
+    success: bool
+    plan: WholeBodyPlan | None
+    plan_time_s: float = 0.0  # [s] wall time
+    n_stances: int = 0
+    failure: str = ""  # "<constraint>: <detail>" when not success
+    stats: dict = field(default_factory=dict)  # the planner's (descent_start, ...)
+    stages_s: dict = field(default_factory=dict)  # [s] wall time per planning stage (graph)
+    start_projection_mm: float | None = None  # [mm] replans: measured base -> projected start
+
+
+@dataclass
+class ExecStatus:
+    sim_time_s: float = 0.0
+    fsm_state: str = "idle"
+    transition_index: int = -1  # in the plan being executed
+    fell: bool = False
+    fall_reason: str = ""
+    fault: str = ""  # why the run stopped otherwise: "cancelled", "dead node: controller ...", ...
+    cancelled: bool = False
+    qp_failures: int = 0
+
+
+class PlanSource(Protocol):
+    def plan(self, steps: int, start: tuple[np.ndarray, Stance] | None = None) -> PlanOutcome: ...
+
+
+class Executor(Protocol):
+    def start(self, plan: WholeBodyPlan) -> None: ...
+    def run(self, budget_s: float, stop: tuple[str, ...]) -> ExecStatus: ...
+    def settle(self, duration_s: float) -> ExecStatus: ...
+    def measured_q(self) -> np.ndarray: ...
+    def report(self) -> dict: ...
+
+
+class Judge(Protocol):
+    def feet_rungs(self) -> dict[str, int | None]: ...
+    def grasps(self) -> dict[str, str]: ...
+
+
+def plan_duration(plan: WholeBodyPlan) -> float:
+    return float(sum(t.times[-1] for t in plan.transitions if len(t.times)))
+
+
+def rungs_reached(feet: dict[str, int | None]) -> int:
+    """Highest rung with both feet on it (0: none / the ground)."""
+    values = [feet.get(f) for f in FEET]
+    if any(v is None for v in values) or values[0] != values[1]:
+        return 0
+    return int(values[0])
+
+
+def replan_stance(plan: WholeBodyPlan, index: int) -> Stance:
+    """The stance to replan from after ``replan_needed`` at transition ``index``: the stance the
+    transition started from (the moving limb's hold then is where it was lifted from)."""
+    if 0 <= index < len(plan.transitions):
+        return plan.transitions[index].stance
+    return plan.transitions[-1].target_stance if plan.transitions else plan.initial_stance
+
+
+def _stance_feet_rung(stance: Stance) -> int:
+    from .judge import rung_index
+
+    rungs = [rung_index(h.env_surface) for h in stance.holds if h.limb in FEET]
+    rungs = [r for r in rungs if r is not None]
+    return min(rungs) if rungs else 0
+
+
+# ---------------------------------------------------------------------------------------- session
+
+
+class ClimbSession:
+    """Plan -> execute -> (replan ...) -> judge, over the three ports; ``run()`` returns the summary."""
+
+    def __init__(self, req: ClimbRequest, settings, plans: PlanSource, executor: Executor, judge: Judge,
+                 say: Callable[[str], None] | None = None,
+                 on_phase: Callable[[str, str], None] | None = None):
+        self.req = req
+        self.settings = settings  # ClimbSettings: extra_time_s, settle_time_s, foot_force_min
+        self.plans = plans
+        self.executor = executor
+        self.judge = judge
+        self.say = say or (lambda msg: None)
+        self.on_phase = on_phase or (lambda phase, text: None)
+        self.summary = base_summary(req)
+        self.active: list[WholeBodyPlan] = []  # every plan executed, in order
+        self.done_before = 0  # transitions of the plans before the current one
+        self.replans: list[dict] = []
+        self._prefix: list = []  # transitions executed of the plans before the current one
+        self.top_feet: dict = {}
+        self.n_up: int | None = None  # descend: first transition of the descent
+        self.executed = False
+        self.plan_time_s = 0.0
+
+    # ------------------------------------------------------------------ progress (adapters call)
+    @property
+    def current(self) -> WholeBodyPlan | None:
+        return self.active[-1] if self.active else None
+
+    @property
+    def n_transitions(self) -> int:
+        return self.done_before + (len(self.current.transitions) if self.current is not None else 0)
+
+    def on_transition(self, index: int, sim_time_s: float) -> None:
+        """The executor saw the controller pick transition ``index`` of the current plan."""
+        plan = self.current
+        if plan is None or not 0 <= index < len(plan.transitions):
+            return
+        if self.n_up is not None and index == self.n_up and not self.top_feet:
+            self.top_feet.update(self.judge.feet_rungs())
+        t = plan.transitions[index]
+        self.say(f"t = {sim_time_s:6.2f} s  transition {self.done_before + index + 1}/{self.n_transitions}: "
+                 f"{t.primitive} {t.moving_limb}")
+
+    def progress(self, index: int) -> float:
+        """[0, 1] of the transitions planned so far (a replan may add some)."""
+        n = self.n_transitions
+        return 0.0 if n == 0 else min(1.0, (self.done_before + max(index, 0)) / n)
+
+    # ------------------------------------------------------------------ the run
+    def _plan(self, steps: int, start=None) -> PlanOutcome:
+        out = self.plans.plan(steps, start)
+        self.plan_time_s += float(out.plan_time_s)
+        return out
+
+    def run(self) -> dict:
+        req, cs, s = self.req, self.settings, self.summary
+        first = req.rungs if req.plan_cycles is None else min(req.plan_cycles, req.rungs)
+        self.on_phase("planning", f"{first}-step climb{' and descent' if req.descend else ''}")
+        self.say(f"planning {first}-step climb{' and descent' if req.descend else ''} of {s['ladder']} "
+                 f"with {req.robot}")
+        out = self._plan(first)
+        s["plan_time_s"] = round(out.plan_time_s, 3)
+        s["n_stances"] = out.n_stances
+        if out.stages_s:
+            s["plan_stages_s"] = {k: round(v, 3) for k, v in out.stages_s.items()}
+        if not out.success or out.plan is None:
+            s["failure_reason"] = f"plan: {out.failure}"
+            self.on_phase("failed", s["failure_reason"])
+            return s
+        plan = out.plan
+        if req.descend:
+            s["descent_start_transition"] = int(out.stats["descent_start"])
+            self.n_up = s["descent_start_transition"]
+        if req.max_transitions is not None:
+            from dataclasses import replace
+
+            plan = replace(plan, transitions=list(plan.transitions[:req.max_transitions]))
+        if req.command_delay_ticks:
+            s["command_delay_ticks"] = req.command_delay_ticks
+        self.say(f"plan: {len(plan.transitions)} transitions, {plan_duration(plan):.1f} s of motion "
+                 f"({out.plan_time_s:.1f} s to plan)")
+        self.active.append(plan)
+        self.executed = True
+        self.on_phase("executing", f"{len(plan.transitions)} transitions")
+        self.say(f"executing in {req.mode} mode ({plan_duration(plan):.1f} s of plan)")
+        self.executor.start(plan)
+        status = self.executor.run(plan_duration(plan) + cs.extra_time_s, STOP_STATES)
+        cycles = first
+        forced = 0
+        while not (status.fault or status.fell):
+            if status.fsm_state == "hold" and req.plan_cycles is not None and cycles < req.rungs:
+                k = min(req.plan_cycles, req.rungs - cycles)
+                stance = self.current.transitions[-1].target_stance  # the stance the controller holds
+                record = {"cycles": k, "reason": "plan_cycles"}
+                self.say(f"replanning {k} more cycle(s) from the reached state")
+            elif (status.fsm_state == "replan_needed" and not req.descend and req.max_transitions is None
+                  and forced < req.max_forced_replans):
+                forced += 1
+                stance = replan_stance(self.current, status.transition_index)
+                k = max(1, req.rungs - _stance_feet_rung(stance))
+                record = {"cycles": k, "reason": "replan_needed",
+                          "transition": self.done_before + max(status.transition_index, 0)}
+                self.say(f"replan_needed at transition {record['transition'] + 1}: replanning {k} cycle(s) "
+                         f"from the measured state (attempt {forced} of {req.max_forced_replans})")
+            else:
+                break
+            self.on_phase("replanning", f"{record['reason']}: {k} cycle(s)")
+            nxt = self._plan(k, (self.executor.measured_q(), stance))
+            record["plan_time_s"] = round(nxt.plan_time_s, 3)
+            if nxt.start_projection_mm is not None:
+                record["start_projection_mm"] = round(nxt.start_projection_mm, 2)
+            record["sim_time_s"] = round(status.sim_time_s, 3)
+            self.replans.append(record)
+            if not nxt.success or nxt.plan is None:
+                record["failure_reason"] = f"plan: {nxt.failure}"
+                break
+            if record["reason"] == "plan_cycles":
+                cycles += k
+            else:
+                cycles = req.rungs
+            done = len(self.current.transitions) if record["reason"] == "plan_cycles" else max(status.transition_index, 0)
+            self._prefix.extend(self.current.transitions[:done])
+            self.done_before += done
+            self.active.append(nxt.plan)
+            self.on_phase("executing", f"{len(nxt.plan.transitions)} more transitions")
+            self.executor.start(nxt.plan)
+            status = self.executor.run(plan_duration(nxt.plan) + cs.extra_time_s, STOP_STATES)
+        if status.fsm_state == "hold" and not (status.fell or status.fault):
+            status = self.executor.settle(cs.settle_time_s)
+        return self.finish(status)
+
+    def executed_plan(self) -> WholeBodyPlan | None:
+        """The plan as executed (the transitions run of every plan, concatenated)."""
+        if not self.active:
+            return None
+        if len(self.active) == 1:
+            return self.active[0]
+        from dataclasses import replace
+
+        return replace(self.active[0], transitions=self._prefix + list(self.active[-1].transitions))
+
+    def finish(self, status: ExecStatus) -> dict:
+        req, s = self.req, self.summary
+        feet = self.judge.feet_rungs()
+        reached = rungs_reached(feet)
+        index = status.transition_index
+        s.update({
+            "rungs_reached": reached,
+            "sim_time_s": round(float(status.sim_time_s), 3),
+            "fell": bool(status.fell),
+            "fsm_state": status.fsm_state,
+            "transitions_done": self.done_before + int(max(index, 0)),
+            "n_transitions": self.n_transitions,
+            "qp_failures": int(status.qp_failures),
+            "feet_rungs": {f: feet.get(f) for f in FEET},
+            "grasps": dict(self.judge.grasps()),
+        })
+        s["plan_time_s"] = round(self.plan_time_s, 3)
+        s.update(self.executor.report())
+        if self.replans or req.plan_cycles is not None:
+            s["replans"] = self.replans
+        if status.cancelled:
+            s["cancelled"] = True
+        reasons = []
+        if status.fault:
+            reasons.append(status.fault)
+        if status.fell:
+            reasons.append(f"fell: {status.fall_reason}")
+        if status.fsm_state != "hold" and not status.cancelled:
+            reasons.append(f"controller ended in {status.fsm_state} at transition {self.done_before + index} "
+                           f"of {self.n_transitions}")
+        if self.replans and "failure_reason" in self.replans[-1]:
+            reasons.append(f"replanning ({self.replans[-1]['reason']}): {self.replans[-1]['failure_reason']}")
+        if req.descend:
+            s["top_feet_rungs"] = {f: self.top_feet.get(f) for f in FEET}
+            top = rungs_reached(self.top_feet) if self.top_feet else 0
+            if req.max_transitions is None and top < req.rungs:
+                reasons.append(f"feet on rungs {self.top_feet or 'never seen'} when the descent began "
+                               f"(need both on rung >= {req.rungs})")
+            if req.max_transitions is None and any(feet.get(f) != 0 for f in FEET):
+                reasons.append(f"feet on {feet} at the end of the descent (need both on the ground)")
+        elif req.max_transitions is None and reached < req.rungs:
+            reasons.append(f"feet on rungs {feet} (need both on rung >= {req.rungs})")
+        s["success"] = not reasons
+        s["failure_reason"] = "; ".join(reasons)
+        self.on_phase("cancelled" if status.cancelled else ("done" if s["success"] else "failed"),
+                      s["failure_reason"] or "success")
+        self.say(f"done: {s['failure_reason'] or 'success'}")
+        return s
+
+
+def controller_overrides(req: ClimbRequest, settings, control_period_s: float | None = None) -> dict:
+    """Dotted controller parameters of a climb on top of config/nodes/controller.yaml (the same
+    for the in-process controller and the controller node): config/climb.yaml's overrides,
+    compliance ones, the request's, the mode, and (given the control period [s]) the actuation
+    latency of a command delay."""
+    overrides = dict(settings.controller_overrides)
+    if req.mode == "compliance":
+        overrides.update(settings.compliance_overrides)
+    overrides.update(req.controller_overrides)
+    overrides["mode"] = req.mode
+    if control_period_s is not None and req.command_delay_ticks and "actuation_latency_s" not in overrides:
+        overrides["actuation_latency_s"] = req.command_delay_ticks * control_period_s
+    return overrides

@@ -1,0 +1,123 @@
+"""climb_coordinator.session: the decisions shared by the in-process climb and the coordinator
+node, driven through fake ports (no planner, no simulator, no ROS)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from climb_core.contact import Stance, Transition, WholeBodyPlan
+from climb_core.errors import SpecError
+from climb_coordinator.session import ClimbRequest, ClimbSession, ExecStatus, PlanOutcome, check_request
+
+
+class Settings:
+    extra_time_s = 10.0
+    settle_time_s = 1.0
+    foot_force_min = 20.0
+
+
+def _plan(n: int) -> WholeBodyPlan:
+    t = [Transition(f"p{i}", "", Stance(()), Stance(()), np.array([0.0, 1.0]), np.zeros((2, 7))) for i in range(n)]
+    return WholeBodyPlan("g1", "default", [], Stance(()), t)
+
+
+class Plans:
+    def __init__(self, outcomes):
+        self.outcomes = list(outcomes)
+        self.calls = []
+
+    def plan(self, steps, start=None):
+        self.calls.append((steps, start is not None))
+        return self.outcomes.pop(0)
+
+
+class Executor:
+    def __init__(self, statuses):
+        self.statuses = list(statuses)
+        self.started = []
+
+    def start(self, plan):
+        self.started.append(plan)
+
+    def run(self, budget_s, stop):
+        self.last = self.statuses.pop(0)
+        return self.last
+
+    def settle(self, duration_s):
+        return self.last
+
+    def measured_q(self):
+        return np.zeros(7)
+
+    def report(self):
+        return {"wall_time_s": 1.0}
+
+
+class Judge:
+    def __init__(self, rung):
+        self.rung = rung
+
+    def feet_rungs(self):
+        return {"left_foot": self.rung, "right_foot": self.rung}
+
+    def grasps(self):
+        return {}
+
+
+def test_success_needs_hold_no_fall_and_both_feet_on_the_rung():
+    s = ClimbSession(ClimbRequest(rungs=2), Settings(), Plans([PlanOutcome(True, _plan(4), 1.5, 5)]),
+                     Executor([ExecStatus(10.0, "hold", 3)]), Judge(2)).run()
+    assert s["success"] and s["rungs_reached"] == 2 and s["transitions_done"] == 3 and s["plan_time_s"] == 1.5
+    s = ClimbSession(ClimbRequest(rungs=2), Settings(), Plans([PlanOutcome(True, _plan(4), 1.0, 5)]),
+                     Executor([ExecStatus(10.0, "hold", 3)]), Judge(1)).run()
+    assert not s["success"] and "need both on rung >= 2" in s["failure_reason"]
+
+
+def test_replan_needed_replans_from_the_measured_state_bounded():
+    plans = Plans([PlanOutcome(True, _plan(4), 1.0, 5), PlanOutcome(True, _plan(3), 2.0, 4),
+                   PlanOutcome(True, _plan(3), 2.0, 4)])
+    ex = Executor([ExecStatus(5.0, "replan_needed", 2), ExecStatus(8.0, "replan_needed", 1)])
+    s = ClimbSession(ClimbRequest(rungs=1, max_forced_replans=1), Settings(), plans, ex, Judge(0)).run()
+    assert [r["reason"] for r in s["replans"]] == ["replan_needed"]
+    assert plans.calls == [(1, False), (1, True)]  # the replan from the measured state
+    assert not s["success"] and "replan_needed" in s["failure_reason"]
+    assert s["transitions_done"] == 2 + 1 and s["n_transitions"] == 2 + 3
+    assert s["plan_time_s"] == 3.0
+
+
+def test_a_fault_or_a_fall_stops_without_replanning():
+    for status, text in ((ExecStatus(5.0, "transfer", 2, fault="dead node: controller"), "dead node: controller"),
+                         (ExecStatus(5.0, "transfer", 2, fell=True, fall_reason="base low"), "fell: base low"),
+                         (ExecStatus(5.0, "failure", 2), "controller ended in failure")):
+        plans = Plans([PlanOutcome(True, _plan(4), 1.0, 5)])
+        s = ClimbSession(ClimbRequest(rungs=1), Settings(), plans, Executor([status]), Judge(0)).run()
+        assert not s["success"] and text in s["failure_reason"] and len(plans.calls) == 1
+
+
+def test_cancel_is_reported_as_cancelled():
+    s = ClimbSession(ClimbRequest(rungs=1), Settings(), Plans([PlanOutcome(True, _plan(4), 1.0, 5)]),
+                     Executor([ExecStatus(5.0, "transfer", 2, fault="cancelled", cancelled=True)]), Judge(0)).run()
+    assert s["cancelled"] and not s["success"] and s["failure_reason"].startswith("cancelled")
+
+
+def test_plan_cycles_plans_the_rest_at_each_hold():
+    plans = Plans([PlanOutcome(True, _plan(4), 1.0, 5), PlanOutcome(True, _plan(2), 1.0, 3)])
+    ex = Executor([ExecStatus(5.0, "hold", 3), ExecStatus(9.0, "hold", 1)])
+    s = ClimbSession(ClimbRequest(rungs=2, plan_cycles=1), Settings(), plans, ex, Judge(2)).run()
+    assert s["success"] and [r["reason"] for r in s["replans"]] == ["plan_cycles"]
+    assert s["transitions_done"] == 4 + 1 and s["n_transitions"] == 6
+
+
+def test_a_failed_plan_is_the_failure_reason():
+    s = ClimbSession(ClimbRequest(rungs=1), Settings(), Plans([PlanOutcome(False, None, 3.0, failure="reach: x")]),
+                     Executor([]), Judge(0)).run()
+    assert not s["success"] and s["failure_reason"] == "plan: reach: x"
+
+
+@pytest.mark.parametrize("changes, field", [({"robot": "nobody"}, "robot"), ({"rungs": 5}, "rungs"),
+                                            ({"ladder": "no_such_ladder"}, "source"), ({"mode": "x"}, "mode")])
+def test_check_request_refuses_with_the_field(changes, field):
+    with pytest.raises(SpecError) as err:
+        check_request(ClimbRequest(**changes))
+    assert err.value.field == field
+    check_request(ClimbRequest(rungs=4))  # the default ladder gives G1 rung 4 (hands on rung 8)
