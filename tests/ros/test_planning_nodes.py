@@ -54,7 +54,7 @@ def test_node_yaml_files_hold_the_code_defaults():
     ({"seed": -1}, "request.seed"), ({"timeout_s": 0}, "request.timeout_s"), ({"descend": "yes"}, "request.descend"),
     ({"strategy": "dfs"}, "request.strategy"), ({"robot": "../g1"}, "request.robot"),
     ({"start": {"q": [0.0]}}, "request.start"), ({"start": {"q": [float("nan")], "stance": {}}}, "request.start.q"),
-    ({"mode": "qp"}, "request.mode")])
+    ({"mode": "qp"}, "request.mode"), ({"rungs": 10 ** 9}, "request.rungs"), ({"seed": 2 ** 64}, "request.seed")])
 def test_plan_requests_are_checked_field_by_field(change, field):
     from climb_core.errors import SpecError
     from planner_node.pipeline import parse_plan_request
@@ -65,8 +65,8 @@ def test_plan_requests_are_checked_field_by_field(change, field):
     assert parse_plan_request(json.dumps(REQUEST)).rungs == 2
 
 
-def test_a_request_never_makes_a_node_read_a_file_and_a_short_ladder_is_refused():
-    from climb_core.errors import InfeasibleError, SpecError
+def test_a_request_never_makes_a_node_read_a_file_and_more_rungs_than_the_ladder_has_are_refused():
+    from climb_core.errors import SpecError
     from planner_node.node_params import stage_settings
     from planner_node.pipeline import check_request, load_problem, parse_plan_request, seed_sequence
 
@@ -74,10 +74,13 @@ def test_a_request_never_makes_a_node_read_a_file_and_a_short_ladder_is_refused(
         with pytest.raises(SpecError) as err:
             check_request(parse_plan_request(json.dumps(dict(REQUEST, scenario=scenario))))
         assert err.value.field == "request.scenario"
-    problem = load_problem(parse_plan_request(json.dumps(dict(REQUEST, rungs=40))), stage_settings())
-    with pytest.raises(InfeasibleError) as err:
-        seed_sequence(problem)
-    assert err.value.constraint == "no_target"
+    with pytest.raises(SpecError) as err:  # more rungs than the ladder has: refused as it arrives
+        check_request(parse_plan_request(json.dumps(dict(REQUEST, rungs=9))))
+    assert err.value.field == "request.rungs" and "8 rungs" in err.value.rule
+    # up to the top rung: the hands stay on the highest rung they reach
+    problem = load_problem(parse_plan_request(json.dumps(dict(REQUEST, rungs=8))), stage_settings())
+    _, _, steps = seed_sequence(problem)
+    assert {h.limb: h.env_surface for h in steps[-1].stance.holds}["left_foot"] == "rung_8"
 
 
 def test_the_seed_sequence_of_a_climb_and_back_down_retraces_the_cycles():

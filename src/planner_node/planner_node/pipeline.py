@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from climb_core.contact import ContactPlan, GuidePath, Stance, WholeBodyPlan
+from climb_core.contact import LIMBS, ContactPlan, GuidePath, Stance, WholeBodyPlan
 from climb_core.errors import InfeasibleError, SpecError
 
 from .settings import PlannerSettings
@@ -51,6 +51,8 @@ IMPLEMENTED_STRATEGIES = ("primitives",)
 REQUEST_FIELDS = ("id", "robot", "scenario", "rungs", "seed", "timeout_s", "descend", "strategy", "start")
 #: a request is a small JSON document (a spec's YAML text and a start configuration fit easily)
 MAX_REQUEST_CHARS = 1_000_000
+#: no ladder has more rungs (climb_core.ladder's range of ladder.n_rungs)
+MAX_RUNGS = 1000
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
@@ -85,12 +87,12 @@ def request_id_of(text: str) -> str:
     return value if isinstance(value, str) else ""
 
 
-def _int(data: dict, key: str, default: Any, low: int) -> Any:
+def _int(data: dict, key: str, default: Any, low: int, high: int) -> Any:
     v = data.get(key, default)
     if v is None and default is None:
         return None
-    if isinstance(v, bool) or not isinstance(v, int) or v < low:
-        raise SpecError(f"request.{key}", f"must be an integer >= {low}, got {v!r}")
+    if isinstance(v, bool) or not isinstance(v, int) or not low <= v <= high:
+        raise SpecError(f"request.{key}", f"must be an integer in [{low}, {high}], got {v!r}"[:300])
     return v
 
 
@@ -120,8 +122,8 @@ def parse_plan_request(text: Any) -> PlanRequest:
         raise SpecError("request.scenario", "must be a ladder name of config/ladders/ or the spec's YAML text")
     if "rungs" not in data:
         raise SpecError("request.rungs", "is required (climbing cycles: the feet end on rung `rungs`)")
-    rungs = _int(data, "rungs", 2, 1)
-    seed = _int(data, "seed", None, 0)
+    rungs = _int(data, "rungs", 2, 1, MAX_RUNGS)
+    seed = _int(data, "seed", None, 0, 2 ** 63 - 1)
     timeout = data.get("timeout_s")
     if timeout is not None:
         if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not math.isfinite(timeout) \
@@ -191,7 +193,11 @@ def check_request(request: PlanRequest) -> None:
     if request.robot not in available_robots():
         raise SpecError("request.robot", f"unknown robot {request.robot!r} (available: "
                                          f"{', '.join(available_robots())})")
-    load_request_scenario(request.scenario)
+    scenario = load_request_scenario(request.scenario)
+    n = int(scenario.ladder.n_rungs)
+    if request.rungs > n:
+        raise SpecError("request.rungs", f"must be <= the ladder's {n} rungs (the feet end on rung `rungs`), "
+                                         f"got {request.rungs}")
 
 
 @dataclass
@@ -235,9 +241,19 @@ def load_problem(request: PlanRequest, settings: PlannerSettings) -> Problem:
                                                f"{robot.config.name}, got {q.shape[0]}")
         try:
             stance = stance_from_dict(request.start["stance"], "request.start.stance")
-        except ValueError as exc:  # Stance refuses a limb held twice
-            raise SpecError("request.start.stance", str(exc)) from None
+        except SpecError:
+            raise
+        except (TypeError, ValueError, KeyError) as exc:  # Stance refuses a limb held twice, ...
+            raise SpecError("request.start.stance", f"malformed stance: {exc}"[:300]) from None
         for i, h in enumerate(stance.holds):
+            where = f"request.start.stance.holds[{i}]"
+            if h.limb not in LIMBS:
+                raise SpecError(f"{where}.limb", f"must be one of {', '.join(LIMBS)}, got {h.limb!r}")
+            if not h.points or not (np.isfinite(h.positions).all() and np.isfinite(h.normals).all()):
+                raise SpecError(f"{where}.points", "needs at least one point, with finite positions and normals")
+            if not (math.isfinite(h.friction) and h.friction > 0) or not (math.isfinite(h.grip_force_limit)
+                                                                          and h.grip_force_limit >= 0):
+                raise SpecError(where, "friction must be > 0 and grip_force_limit >= 0, both finite")
             if h.env_surface not in env.surfaces:
                 raise SpecError(f"request.start.stance.holds[{i}].env_surface",
                                 f"no surface {h.env_surface!r} in scenario {env.name!r}")
