@@ -1,8 +1,8 @@
-"""Keep DDS on this machine.
+"""Keep DDS on this machine, and the process-level settings of an executable (signals, CPUs).
 
 Every process the project starts calls :func:`apply_local_dds_env` before ``rclpy.init()`` (or
 passes :func:`local_dds_env` to a child process). The user can still override any of the three
-variables on purpose; nothing here imports rclpy.
+variables on purpose; nothing here imports rclpy (the ROS-side helpers are in msgs_py.node_kit).
 """
 from __future__ import annotations
 
@@ -108,26 +108,14 @@ def pin_to_cpus(cpus, logger=None) -> set[int] | None:
 
 
 def apply_cpu_affinity(node) -> set[int] | None:
-    """Pin the process to the node's ``cpu_affinity`` parameter (:func:`pin_to_cpus`); a parameter
-    left unset keeps the inherited CPU set. Call it after the executor exists, so that the DDS
-    threads are pinned too."""
-    from rclpy.exceptions import ParameterUninitializedException
+    """Moved to msgs_py.node_kit.apply_cpu_affinity (it reads a node parameter: ROS side)."""
+    from msgs_py import node_kit
 
-    try:
-        value = node.get_parameter("cpu_affinity").value
-    except ParameterUninitializedException:
-        return None
-    return pin_to_cpus(value, node.get_logger())
+    return node_kit.apply_cpu_affinity(node)
 
 
 def make_executor():
-    """rclpy's EventsExecutor (C++ event queue: about half the CPU of SingleThreadedExecutor per
-    message, FIELD_NOTES; it doubled the lock-step rate over ROS), else SingleThreadedExecutor.
-    Drive it with ``spin_once``."""
-    try:
-        from rclpy.experimental import EventsExecutor
-    except ImportError:  # pragma: no cover - rclpy before Jazzy
-        from rclpy.executors import SingleThreadedExecutor
+    """Moved to msgs_py.node_kit.make_executor (ROS side; climb_core never imports rclpy)."""
+    from msgs_py import node_kit
 
-        return SingleThreadedExecutor()
-    return EventsExecutor()
+    return node_kit.make_executor()

@@ -48,8 +48,8 @@ from climb_core.params import ParamInfo, describe, flatten, parse_params
 from .topics import qos_for
 
 __all__ = ["run_node", "running", "request_stop", "stop_requested", "install_signal_handlers",
-           "declare_from_schema", "descriptor_for", "guarded", "diagnose", "safe_publish", "Worker",
-           "SHUTDOWN_ERRORS"]
+           "declare_from_schema", "descriptor_for", "guarded", "diagnose", "set_diagnostics_publisher", "safe_publish", "Worker",
+           "SHUTDOWN_ERRORS", "DESERIALIZE_ERRORS", "decode", "make_executor", "apply_cpu_affinity"]
 
 #: [s] longest wait of the default loop's spin_once: the delay between a signal and the exit
 SPIN_PERIOD_S = 0.1
@@ -65,6 +65,28 @@ def _shutdown_errors() -> tuple[type[BaseException], ...]:
 
 
 SHUTDOWN_ERRORS = _shutdown_errors()
+
+
+def _deserialize_errors() -> tuple[type[BaseException], ...]:
+    from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+    return tuple(e for e in (getattr(_rclpy, "RMWError", None), getattr(_rclpy, "RCLError", None))
+                 if isinstance(e, type))
+
+
+#: what rclpy.serialization.deserialize_message raises on bytes that are not the type's CDR
+DESERIALIZE_ERRORS = _deserialize_errors() + (ValueError, TypeError)
+
+
+def decode(data: bytes, msg_type):
+    """``deserialize_message(data, msg_type)``, or ValueError naming the type and the size when
+    the bytes are not a message of that type (a raw subscription's guard against garbage)."""
+    from rclpy.serialization import deserialize_message
+
+    try:
+        return deserialize_message(data, msg_type)
+    except DESERIALIZE_ERRORS as err:
+        raise ValueError(f"undecodable {msg_type.__name__} ({len(data)} bytes): {err}") from None
 
 
 # ------------------------------------------------------------------------------------ signals
@@ -84,6 +106,33 @@ def stop_requested() -> bool:
 def running(context=None) -> bool:
     """True until a signal, :func:`request_stop` or the context's shutdown."""
     return not _STOP.is_set() and rclpy.ok(context=context)
+
+
+# ------------------------------------------------------------------------------ executor, CPUs
+def make_executor():
+    """rclpy's EventsExecutor (C++ event queue: about half the CPU of SingleThreadedExecutor per
+    message, FIELD_NOTES; it doubled the lock-step rate over ROS), else SingleThreadedExecutor.
+    Drive it with ``spin_once`` (its ``spin()`` in the Jazzy wheels never runs a callback)."""
+    try:
+        from rclpy.experimental import EventsExecutor
+    except ImportError:  # pragma: no cover - rclpy before Jazzy
+        from rclpy.executors import SingleThreadedExecutor
+
+        return SingleThreadedExecutor()
+    return EventsExecutor()
+
+
+def apply_cpu_affinity(node) -> set[int] | None:
+    """Pin the process to the node's ``cpu_affinity`` parameter (climb_core.ros_env.pin_to_cpus);
+    a parameter left unset keeps the inherited CPU set. Call it after the executor exists, so that
+    the DDS threads are pinned too."""
+    from rclpy.exceptions import ParameterUninitializedException
+
+    try:
+        value = node.get_parameter("cpu_affinity").value
+    except ParameterUninitializedException:
+        return None
+    return _ros_env.pin_to_cpus(value, node.get_logger())
 
 
 # --------------------------------------------------------------------------------- run_node
@@ -109,10 +158,8 @@ def run_node(factory: Callable[[], Any], args: list[str] | None = None, *, execu
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
 
-    from climb_core.ros_env import apply_local_dds_env, make_executor
-
     install_signal_handlers()
-    apply_local_dds_env()
+    _ros_env.apply_local_dds_env()
     code = 0
     nodes: list[Any] = []
     ex = None
@@ -280,7 +327,11 @@ def declare_from_schema(node, schema_cls: type, defaults: Any = None, *, prefix:
 
 
 # --------------------------------------------------------------------------- bad input, threads
-_DIAG_PUBS: dict[int, Any] = {}
+def set_diagnostics_publisher(node, publisher) -> None:
+    """Let :func:`diagnose` / :func:`guarded` use the node's own ``diagnostics`` publisher (it
+    must be a plain publisher of diagnostic_msgs/DiagnosticArray; a lifecycle publisher drops
+    messages while inactive)."""
+    node._node_kit_diagnostics = publisher
 
 
 def diagnose(node, name: str, message: str, level: int = 2, values: Mapping[str, Any] | None = None) -> bool:
@@ -289,10 +340,10 @@ def diagnose(node, name: str, message: str, level: int = 2, values: Mapping[str,
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
     try:
-        pub = _DIAG_PUBS.get(id(node))
+        pub = getattr(node, "_node_kit_diagnostics", None)
         if pub is None:
-            pub = _DIAG_PUBS[id(node)] = node.create_publisher(DiagnosticArray, "diagnostics",
-                                                                qos_for("diagnostics"))
+            pub = node.create_publisher(DiagnosticArray, "diagnostics", qos_for("diagnostics"))
+            set_diagnostics_publisher(node, pub)
         msg = DiagnosticArray()
         msg.header.stamp = node.get_clock().now().to_msg()
         msg.status.append(DiagnosticStatus(level=bytes([level]), name=name, message=message[:2000],

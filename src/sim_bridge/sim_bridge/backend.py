@@ -164,6 +164,11 @@ class Backend(abc.ABC):
     def close(self) -> None:
         """Release the simulator."""
 
+    def check_perturbation(self, request: PerturbRequest) -> None:
+        """SpecError naming the field when ``request`` cannot be carried out in this world (unknown
+        link, no such rung, no rails, out of bounds). The base class accepts what PerturbRequest
+        itself accepts."""
+
     # -- shared ---------------------------------------------------------------------------------
     def apply_command(self, cmd: ActuatorCommand) -> None:
         """Validate (length, modes, finite, PWM range: SpecError otherwise) and store ``cmd``."""

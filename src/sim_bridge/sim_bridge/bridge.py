@@ -156,6 +156,9 @@ class SimBridge:
         self.backend.request_gripper(request)
 
     def offer_perturbation(self, request: PerturbRequest) -> None:
+        """Queue ``request`` for its time; SpecError (nothing queued) when this world cannot carry
+        it out (Backend.check_perturbation)."""
+        self.backend.check_perturbation(request)
         self.backend.request_perturbation(request)
 
     # -- lock-step ------------------------------------------------------------------------------

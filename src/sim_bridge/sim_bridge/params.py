@@ -121,6 +121,21 @@ class DropParams:
 
 
 @dataclass(frozen=True)
+class PerturbationLimits:
+    max_mass_kg: float = param(50.0, unit="kg", min=0.0, description="sim/perturb refuses a heavier ball")
+    max_radius_m: float = param(0.5, unit="m", min=0.0, description="sim/perturb refuses a larger ball")
+    max_speed_mps: float = param(30.0, unit="m/s", min=0.0, description="sim/perturb refuses a faster ball")
+    max_offset_m: float = param(0.5, unit="m", min=0.0,
+                                description="sim/perturb refuses a rung offset or a rail shift larger than this")
+
+
+@dataclass(frozen=True)
+class ContactsParams:
+    rate_hz: float = param(20.0, unit="Hz", min=0.0, max=1000.0, description="sim-time rate of the sim-only "
+                           "judge topic sim/contacts (0 = not published)")
+
+
+@dataclass(frozen=True)
 class DiagnosticsParams:
     period_s: float = param(0.1, unit="s", min=1e-3, description="sim time between periodic diagnostics")
 
@@ -144,6 +159,8 @@ class BridgeParams:
     falls: FallParams = group(FallParams, "fall detection")
     drops: DropParams = group(DropParams, "dropped objects")
     diagnostics: DiagnosticsParams = group(DiagnosticsParams, "diagnostics publishing")
+    perturbation: PerturbationLimits = group(PerturbationLimits, "bounds of the sim/perturb service")
+    contacts: ContactsParams = group(ContactsParams, "sim/contacts (ground truth of the contacts for the judge)")
 
     def __post_init__(self) -> None:
         _check(self)

@@ -81,6 +81,7 @@ class PyBulletBackend(Backend):
         self._kinematics = None  # base kinematics of the current physics state
         self._contact_scan = None  # _scan_contacts() of the current physics state
         self._joint_states = None  # observe()'s getJointStates rows of the current physics state
+        self._built: tuple | None = None  # the last world built (_build's arguments): a failed build restores it
 
     # ============================================================================ world building
     def _connect(self) -> None:
@@ -97,22 +98,46 @@ class PyBulletBackend(Backend):
                                     numSubSteps=0, deterministicOverlappingPairs=1, physicsClientId=self.client)
 
     def reset(self, request: ResetRequest | None = None) -> SimState:
-        """Build the world (robot, environment, ground) and put the robot in its initial posture."""
+        """Build the world (robot, environment, ground) and put the robot in its initial posture.
+
+        Everything the request names is loaded and checked first (robot, ladder, posture or q):
+        a request that cannot be carried out raises SpecError before anything changes (the world,
+        the sim time, the queued requests and the last good robot / ladder stay as they were)."""
+        request = request or ResetRequest()
+        plan = self._prepare_reset(request)
+        previous = self._built
+        try:
+            return self._build(*plan)
+        except Exception:
+            if previous is not None:  # rebuilt as it was: a failed reset must not leave half a world
+                self._build(*previous)
+            raise
+
+    def _prepare_reset(self, request: ResetRequest) -> tuple:
+        """(robot name, robot, ladder source, scenario, env, q0, hands to latch, seed) of a reset
+        request, every part loaded and validated; nothing of the running world is touched."""
         from climb_core.robot import load_robot
 
-        request = request or ResetRequest()
-        p = self.p
-        self._clear_requests()
-        self.stamp_ns = 0
         robot_name = request.robot or self.robot_name or self.params.robot
         ladder_source = self.ladder_source if request.ladder is None else request.ladder
         if ladder_source is None:
             ladder_source = self.params.ladder
-        self.robot = load_robot(robot_name)
-        self.robot_name = robot_name
-        self.ladder_source = ladder_source
-        self.scenario, self.env = resolve_scenario(ladder_source, self.params.apply_perturbation)
+        try:
+            robot = self.robot if (robot_name == self.robot_name and self.robot is not None) else load_robot(robot_name)
+        except (OSError, KeyError, ValueError) as err:  # not a SpecError: say which field
+            raise SpecError("robot", f"cannot load robot {robot_name!r}: {err}") from None
+        scenario, env = resolve_scenario(ladder_source, self.params.apply_perturbation)
+        if request.seed is not None and int(request.seed) < 0:
+            raise SpecError("seed", f"must be >= 0, got {request.seed}")
         seed = self.params.seed if request.seed is None else int(request.seed)
+        q0, hands = initial_configuration(robot, env, request.q, request.initial_posture or self.params.initial_posture)
+        return robot_name, robot, ladder_source, scenario, env, q0, hands, seed
+
+    def _build(self, robot_name, robot, ladder_source, scenario, env, q0, hands_to_latch, seed) -> SimState:
+        self._clear_requests()
+        self.stamp_ns = 0
+        self.robot, self.robot_name, self.ladder_source = robot, robot_name, ladder_source
+        self.scenario, self.env = scenario, env
         self.rng = np.random.default_rng(seed)
         self._connect()
         cid = self.client
@@ -121,8 +146,6 @@ class PyBulletBackend(Backend):
         self.ground_body = self.env_bodies.get("ground", -1)
         self._env_body_set = set(self.env_bodies.values())
         self._load_robot()
-        q0, hands_to_latch = initial_configuration(self.robot, self.env, request.q,
-                                                   request.initial_posture or self.params.initial_posture)
         self._set_configuration(q0)
         self.actuators.reset()
         self.balls = []
@@ -136,6 +159,7 @@ class PyBulletBackend(Backend):
                                                      target_link=drop.target_link, at_time=drop.at_time))
         self._imu_velocity_prev = self._base_kinematics()[2]
         self._imu_acc = np.zeros(3)
+        self._built = (robot_name, robot, ladder_source, scenario, env, q0, hands_to_latch, seed)
         return self.observe()
 
     def _load_robot(self) -> None:
@@ -734,6 +758,38 @@ class PyBulletBackend(Backend):
             for name in rails:
                 self._move_surface(name, offset)
             self._emit("perturbation", f"rails shifted by dy = {request.dy:.3f} m", 1, dy=request.dy)
+
+    def check_perturbation(self, request: PerturbRequest) -> None:
+        """Refuse (SpecError naming the field, with the limit) what this world cannot carry out."""
+        lim = self.params.perturbation
+        f = "perturbation"
+        if request.kind == "drop":
+            self.resolve_link(request.target_link)
+            for name, limit, unit in (("mass", lim.max_mass_kg, "kg"), ("radius", lim.max_radius_m, "m"),
+                                      ("speed", lim.max_speed_mps, "m/s")):
+                if getattr(request, name) > limit:
+                    raise SpecError(f"{f}.{name}", f"must be <= {limit} [{unit}] "
+                                    f"(perturbation.max_*), got {getattr(request, name)}")
+        elif request.kind == "rung_offset":
+            n = self.env.n_rungs if self.env is not None else 0
+            if not 1 <= int(request.rung) <= n or f"rung_{int(request.rung)}" not in self.env_bodies:
+                raise SpecError(f"{f}.rung", f"no rung {request.rung}: the ladder has rungs 1..{n}")
+            offsets = (("dx", request.dx), ("dz", request.dz))
+        else:
+            if not any(name.startswith("rail_") for name in self.env_bodies):
+                raise SpecError(f"{f}.kind", "rails_shift: the ladder has no rails")
+            offsets = (("dy", request.dy),)
+        if request.kind != "drop":
+            for name, value in offsets:
+                if abs(value) > lim.max_offset_m:
+                    raise SpecError(f"{f}.{name}", f"|{name}| must be <= {lim.max_offset_m} [m] "
+                                    f"(perturbation.max_offset_m), got {value}")
+
+    def contacts(self):
+        """The sim-only judge's view of the contacts now (sim_bridge.contacts.ContactsSnapshot)."""
+        from .contacts import contacts_snapshot
+
+        return contacts_snapshot(self)
 
     def _move_surface(self, name: str, offset_in_world: np.ndarray) -> None:
         p, cid = self.p, self.client

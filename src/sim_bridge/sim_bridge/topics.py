@@ -3,8 +3,9 @@
 A reliable publisher matches both reliable and best-effort subscribers; a best-effort publisher
 never matches a reliable subscriber, so every topic the bridge publishes is RELIABLE, and the
 subscriptions are RELIABLE too (a controller must publish commands RELIABLE). Durability is
-VOLATILE everywhere. The node builds its QoSProfiles from :data:`TOPICS`; docs/sim_bridge.md
-has the same table.
+VOLATILE everywhere. The QoS comes from the graph's one table, msgs_py.topics (the node builds
+its QoSProfiles with msgs_py.topics.qos_for; a test checks this table agrees);
+docs/sim_bridge.md has the same table.
 """
 from __future__ import annotations
 
@@ -34,6 +35,8 @@ TOPICS: dict[str, TopicSpec] = {spec.name: spec for spec in (
               "root link pose in world; twist in the root link frame (= Pinocchio free-flyer v)"),
     TopicSpec("/clock", "rosgraph_msgs/msg/Clock", "pub", "reliable", 1,
               "lock-step only: sim time, published right before the state stamped with it"),
+    TopicSpec("sim/contacts", "climb_msgs/msg/SimContacts", "pub", "reliable", 10,
+              "sim only (the judge): per limb normal / tangential force [N], surface, rung, grasped; fell"),
     TopicSpec("diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "pub", "reliable", 50,
               "over-current trips, watchdog, controller lost, rejected commands, falls, grasps, step time"),
     TopicSpec("joint_command", "climb_msgs/msg/JointCommand", "sub", "reliable", 10,
