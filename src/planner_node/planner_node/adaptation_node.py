@@ -137,6 +137,7 @@ def make_node():
             self.create_subscription(ContactPlan, "contact_plan", guarded(self, self._on_contact_plan, "contact_plan"),
                                      qos_for("contact_plan"))
             self.get_logger().info("primitive_adaptation ready")
+            self.warm_up(planner_settings(self.params), self.params.planning.robot)
 
         def _on_progress(self, k, n, _attempts) -> None:
             self.set_progress(k, n)
@@ -220,6 +221,9 @@ def _legacy_id(text: str) -> str:
 
 
 def main(args: list[str] | None = None) -> int:
+    from climb_core.ros_env import install_signal_handlers
+
+    install_signal_handlers()  # first: a signal during the heavy imports below still exits 0
     from msgs_py.node_kit import run_node
 
     return run_node(make_node, args, name=NODE_NAME)

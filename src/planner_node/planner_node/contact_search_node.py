@@ -41,6 +41,7 @@ def make_node():
             self.create_subscription(GuidePath, "guide_path", guarded(self, self._on_guide_path, "guide_path"),
                                      qos_for("guide_path"))
             self.get_logger().info("contact_search ready")
+            self.warm_up(stage_settings(self.params.library, self.params.primitives_dir))
 
         def _on_guide_path(self, msg) -> None:
             rid = msg.request_id
@@ -77,6 +78,9 @@ def make_node():
 
 
 def main(args: list[str] | None = None) -> int:
+    from climb_core.ros_env import install_signal_handlers
+
+    install_signal_handlers()  # first: a signal during the heavy imports below still exits 0
     from msgs_py.node_kit import run_node
 
     return run_node(make_node, args, name=NODE_NAME)

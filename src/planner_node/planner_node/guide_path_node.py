@@ -42,6 +42,7 @@ def make_node():
             self.create_subscription(String, "plan/request", guarded(self, self._on_request, "plan/request"),
                                      qos_for("plan/request"))
             self.get_logger().info("guide_path ready")
+            self.warm_up(stage_settings(self.params.library, self.params.primitives_dir))
 
         def _on_request(self, msg) -> None:
             rid = request_id_of(msg.data)
@@ -69,6 +70,9 @@ def make_node():
 
 
 def main(args: list[str] | None = None) -> int:
+    from climb_core.ros_env import install_signal_handlers
+
+    install_signal_handlers()  # first: a signal during the heavy imports below still exits 0
     from msgs_py.node_kit import run_node
 
     return run_node(make_node, args, name=NODE_NAME)

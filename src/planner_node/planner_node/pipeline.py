@@ -261,6 +261,13 @@ def load_problem(request: PlanRequest, settings: PlannerSettings) -> Problem:
     return Problem(request, robot, scenario, env, library, settings, start)
 
 
+def warm_up(settings: PlannerSettings, robot: str = "g1", scenario: str = "default") -> None:
+    """Load what a first request needs (the robot's model, the default ladder, the primitive library,
+    the start fixture) so that the first request's stage time is planning, not loading."""
+    problem = load_problem(PlanRequest(id="warm-up", robot=robot, scenario=scenario, rungs=1), settings)
+    start_state(problem)
+
+
 def start_state(problem: Problem) -> tuple[np.ndarray, Stance]:
     """(q, stance) the climb starts from: the request's start, else the library's start fixture."""
     if problem.start is not None:

@@ -47,6 +47,24 @@ class StageNode(Node):
         self._progress_lock = threading.Lock()
         self.create_timer(STATUS_PERIOD_S, guarded(self, self._tick, "status_timer"))
 
+    def warm_up(self, settings: Any, robot: str = "g1") -> None:
+        """Load the default robot, ladder, library and start fixture in a background thread (the
+        models are cached per process: the first request then starts planning at once)."""
+        from .pipeline import warm_up
+
+        def run() -> None:
+            t0 = time.perf_counter()
+            try:
+                warm_up(settings, robot)
+            except Exception as exc:  # noqa: BLE001 - only a head start: a request reports real errors
+                if not self.worker.stopping:
+                    self.get_logger().warning(f"warm-up: {type(exc).__name__}: {exc}")
+                return
+            if not self.worker.stopping:
+                self.get_logger().info(f"warm-up done in {time.perf_counter() - t0:.1f} s")
+
+        threading.Thread(target=run, name=f"{self.get_name()}_warm_up", daemon=True).start()
+
     # -------------------------------------------------------------- parameters
     def _set_params(self, new: Any) -> None:
         self.params = new
