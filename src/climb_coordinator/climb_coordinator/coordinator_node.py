@@ -1,0 +1,898 @@
+"""The `climb_coordinator` node: the climb through the ROS 2 graph.
+
+Serves
+  - service ``climb`` (climb_msgs/srv/Climb): checks the request at once (unknown robot, invalid
+    spec with the field and the rule, a target rung the ladder cannot give that robot, a
+    command delay the running bridge does not have, a climb already running) and answers
+    ``accepted`` + id, or the reason; the climb then runs in a worker thread;
+  - action ``climb`` (climb_msgs/action/Climb): the same climb with feedback (phase, stage,
+    transition k of n, FSM state, progress) and the summary as the result; cancel supported;
+  - service ``climb/cancel`` (climb_msgs/srv/Cancel).
+Publishes ``climb/status`` (ClimbStatus), ``climb/request`` (latched std_msgs/String: the accepted
+request as JSON, scenario text included), ``robot_description`` (latched URDF text) and
+``climb/markers`` (visualization_msgs/MarkerArray, ``markers_period_s``).
+
+A climb (climb_coordinator.session.ClimbSession with the ROS adapters below):
+  1. the controller (lifecycle node ``controller``): deactivated / cleaned up if needed, its
+     parameters set for the request (robot, ladder, mode, initial stance, config/climb.yaml's
+     controller overrides, the actuation latency of a command delay), configured;
+  2. ``sim/reset`` (robot, scenario text, the library's start fixture, seed), then the controller
+     activated: it holds the start posture from the new world's first state;
+  3. ``plan/request`` (JSON) -> guide_path -> contact_search -> primitive_adaptation ->
+     ``whole_body_plan``, which the controller executes; stage statuses and times are followed;
+  4. ``controller/state`` is watched (heartbeat): at ``replan_needed`` a new plan from the measured
+     state (joint_states + sim/base_truth) is requested (bounded), on a fall (``sim/contacts``), an
+     FSM failure or a silent controller (no state for ``heartbeat_timeout_s`` of wall time: the
+     controller or, when ``sim/contacts`` is silent too, the bridge) the run stops and says which;
+  5. a cancel sends ``controller/hold`` (std_srvs/Trigger): the controller holds its contacts, the
+     bridge keeps running;
+  6. judged from topics only: ``sim/contacts`` (feet on rungs, grasps, falls), controller/state.
+"""
+from __future__ import annotations
+
+import json
+import threading
+import time
+import uuid
+from typing import Any
+
+import numpy as np
+
+from climb_core.errors import ClimbError, SpecError
+
+from .session import (ClimbRequest, ClimbSession, ExecStatus, PlanOutcome, check_request, controller_overrides,
+                      ladder_name)
+
+NODE_NAME = "climb_coordinator"
+PLAN_STAGES = ("guide_path", "contact_search", "primitive_adaptation")
+#: climb/status phase while a stage works on the climb's plan request
+PLAN_PHASES = {"guide_path": "guide_path", "contact_search": "contact_search", "primitive_adaptation": "adaptation"}
+PLANNING = ("guide_path", "contact_search", "adaptation", "replanning")
+#: lifecycle transition ids (lifecycle_msgs/msg/Transition)
+CONFIGURE, CLEANUP, ACTIVATE, DEACTIVATE = 1, 2, 3, 4
+
+
+def scenario_source(scenario: str) -> tuple[str, str]:
+    """(name, text) of a request's scenario: a shipped name stays a name (its file's text is the
+    text), a file path becomes its text, YAML text stays text (name "custom" or its `name`)."""
+    import pathlib
+
+    from climb_core.ladder import available_ladders, ladder_config_dir, parse_yaml
+
+    s = scenario.strip()
+    if "\n" not in scenario and s in available_ladders():
+        return s, (ladder_config_dir() / f"{s}.yaml").read_text()
+    if "\n" not in scenario and s.lower().endswith((".yaml", ".yml")):
+        path = pathlib.Path(s).expanduser()
+        if not path.is_file():
+            from climb_core.ros_env import project_root
+
+            path = project_root() / s
+        try:
+            return path.stem, path.read_text()
+        except OSError as exc:
+            raise SpecError("scenario", f"cannot read {s}: {exc}") from None
+    try:
+        doc = parse_yaml(scenario)
+        name = str(doc.get("name") or "custom") if isinstance(doc, dict) else "custom"
+    except SpecError:
+        name = "custom"
+    return name, scenario
+
+
+def request_from_msg(msg: Any, default_robot: str) -> ClimbRequest:
+    """A ClimbRequest from a srv/Climb request or an action goal (same fields)."""
+    scenario = msg.scenario or msg.ladder or "default"
+    return ClimbRequest(ladder=scenario, robot=msg.robot or default_robot, rungs=int(msg.rungs),
+                        mode=msg.controller_mode or "qp", seed=int(msg.seed), bag=False,
+                        plan_timeout_s=float(msg.planning_timeout_s) or None, descend=bool(msg.descend),
+                        plan_cycles=int(msg.plan_cycles) or None, command_delay_ticks=int(msg.command_delay_ticks))
+
+
+def main(args: list[str] | None = None) -> int:
+    from msgs_py.node_kit import run_node
+
+    def executor():
+        from rclpy.executors import MultiThreadedExecutor
+
+        return MultiThreadedExecutor(num_threads=4)
+
+    return run_node(lambda: _make_node(), args, executor=executor, name=NODE_NAME)
+
+
+def _make_node():
+    import rclpy
+    from climb_msgs.action import Climb as ClimbAction
+    from climb_msgs.msg import ClimbStatus, ControllerState, SimContacts, WholeBodyPlan
+    from climb_msgs.srv import Cancel, Climb, SimReset
+    from lifecycle_msgs.srv import ChangeState, GetState
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    from rcl_interfaces.srv import GetParameters, SetParameters
+    from rclpy.action import ActionServer, CancelResponse, GoalResponse
+    from rclpy.callback_groups import ReentrantCallbackGroup
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import String
+    from std_srvs.srv import Trigger
+    from visualization_msgs.msg import MarkerArray
+
+    from msgs_py import cdr
+    from msgs_py.node_kit import Worker, guarded, safe_publish
+    from msgs_py.stamps import make_header
+    from msgs_py.topics import qos_for
+
+    from .settings import load_climb_settings
+
+    class Cancelled(Exception):
+        pass
+
+    class ClimbRun:
+        """What one climb shares between the worker, the callbacks and the action."""
+
+        def __init__(self, climb_id: str, req: ClimbRequest):
+            self.id = climb_id
+            self.req = req
+            self.cancel = threading.Event()
+            self.done = threading.Event()
+            self.summary: dict | None = None
+            self.phase = "idle"
+            self.stage = ""
+            self.text = ""
+            self.session: ClimbSession | None = None
+            self.accepted_at = time.monotonic()
+            self.first_command_at: float | None = None
+
+    class CoordinatorNode(Node):
+        def __init__(self) -> None:
+            super().__init__(NODE_NAME)
+            self.group = ReentrantCallbackGroup()
+            g = self.group
+            self.declare_parameter("robot", "g1")  # default robot of a request without one
+            self.declare_parameter("heartbeat_timeout_s", 1.0)  # [s] wall time without controller/state = dead node
+            self.declare_parameter("service_timeout_s", 30.0)  # [s] wall time for one service call of the run
+            self.declare_parameter("plan_wait_margin_s", 60.0)  # [s] beyond the planning timeout for the whole pipeline
+            self.declare_parameter("markers_period_s", 1.0)  # [s] wall period of climb/markers
+            self.declare_parameter("max_forced_replans", 2)  # [-] replans after replan_needed per climb
+            self.declare_parameter("controller", "controller")  # controller lifecycle node name
+            self.declare_parameter("bridge", "sim_bridge")  # bridge node name
+            self.declare_parameter("bag", "")  # path of the graph's bag (reported in the summary)
+            self.declare_parameter("reset_sim", True)  # sim/reset at each climb (simulation)
+            self.cs = load_climb_settings()
+            self.worker = Worker(self, "climb")
+            self.run: ClimbRun | None = None
+            self._lock = threading.Lock()
+            self._cond = threading.Condition()
+            # latest inputs
+            self.state_bytes: bytes | None = None
+            self.state_at = 0.0  # [s] monotonic arrival of the newest controller/state
+            self.state_count = 0
+            self.contacts: Any = None
+            self.contacts_at = 0.0
+            self.plans: dict[str, Any] = {}  # request id -> WholeBodyPlan msg
+            self.stage_status: dict[str, dict[str, Any]] = {}  # request id -> stage -> (phase, text, t)
+            self.tick_ms: list[float] = []
+            self._js_reader = cdr.JointStateReader()
+            # interfaces
+            self.pub_status = self.create_publisher(ClimbStatus, "climb/status", qos_for("climb/status"))
+            self.pub_request = self.create_publisher(String, "climb/request", qos_for("climb/request"))
+            self.pub_plan_request = self.create_publisher(String, "plan/request", qos_for("plan/request"))
+            self.pub_markers = self.create_publisher(MarkerArray, "climb/markers", qos_for("climb/markers"))
+            self.pub_description = self.create_publisher(String, "robot_description", qos_for("robot_description"))
+            self.create_subscription(ControllerState, "controller/state", guarded(self, self._on_state, "state"),
+                                     qos_for("controller/state"), raw=True, callback_group=g)
+            self.create_subscription(SimContacts, "sim/contacts", guarded(self, self._on_contacts, "contacts"),
+                                     qos_for("sim/contacts"), callback_group=g)
+            self.create_subscription(WholeBodyPlan, "whole_body_plan", guarded(self, self._on_plan, "whole_body_plan"),
+                                     qos_for("whole_body_plan"), callback_group=g)
+            for stage in PLAN_STAGES:
+                topic = f"{stage}/status"
+                self.create_subscription(ClimbStatus, topic,
+                                         guarded(self, lambda m, s=stage: self._on_stage(s, m), topic),
+                                         qos_for(topic), callback_group=g)
+            self.create_service(Climb, "climb", guarded(self, self._on_climb, "climb"), callback_group=g)
+            self.create_service(Cancel, "climb/cancel", guarded(self, self._on_cancel, "cancel"), callback_group=g)
+            self.action = ActionServer(self, ClimbAction, "climb", self._execute, callback_group=g,
+                                       goal_callback=self._on_goal, cancel_callback=lambda h: CancelResponse.ACCEPT)
+            ctl = self.get_parameter("controller").value
+            bridge = self.get_parameter("bridge").value
+            self.cli_change = self.create_client(ChangeState, f"{ctl}/change_state", callback_group=g)
+            self.cli_get = self.create_client(GetState, f"{ctl}/get_state", callback_group=g)
+            self.cli_set = self.create_client(SetParameters, f"{ctl}/set_parameters", callback_group=g)
+            self.cli_hold = self.create_client(Trigger, f"{ctl}/hold", callback_group=g)
+            self.cli_reset = self.create_client(SimReset, "sim/reset", callback_group=g)
+            self.cli_bridge_params = self.create_client(GetParameters, f"{bridge}/get_parameters", callback_group=g)
+            self._ParameterMsg, self._Parameter = ParameterMsg, Parameter
+            self._types = {"ChangeState": ChangeState, "GetState": GetState, "SetParameters": SetParameters,
+                           "Trigger": Trigger, "SimReset": SimReset, "GetParameters": GetParameters}
+            self._marker_scene = None
+            self.create_timer(float(self.get_parameter("markers_period_s").value),
+                              guarded(self, self._publish_markers, "markers"), callback_group=g)
+            try:  # the rung check's primitive library, loaded once now (requests are checked at once)
+                check_request(ClimbRequest(robot=self.get_parameter("robot").value, rungs=1))
+            except ClimbError as exc:
+                self.get_logger().warning(f"default request does not check: {exc}")
+            self.status("idle", "ready", climb_id="")
+            self.get_logger().info("climb_coordinator ready: service and action `climb`")
+
+        # ------------------------------------------------------------------ inputs
+        def _on_state(self, data: bytes) -> None:
+            with self._cond:
+                self.state_bytes = data
+                self.state_at = time.monotonic()
+                self.state_count += 1
+                self._cond.notify_all()
+
+        def _on_contacts(self, msg) -> None:
+            with self._cond:
+                self.contacts = msg
+                self.contacts_at = time.monotonic()
+                self._cond.notify_all()
+
+        def wait_message(self, topic: str, timeout: float) -> bytes:
+            """The next message of ``topic`` (raw bytes), through a subscription made for it: the
+            200 Hz state topics are taken only when needed (a sim reset, a replan)."""
+            from nav_msgs.msg import Odometry
+            from sensor_msgs.msg import JointState
+
+            kind = {"joint_states": JointState, "sim/base_truth": Odometry}[topic]
+            got: list[bytes] = []
+            event = threading.Event()
+
+            def on_msg(data: bytes) -> None:
+                if not got:
+                    got.append(data)
+                    event.set()
+            sub = self.create_subscription(kind, topic, on_msg, qos_for(topic), raw=True, callback_group=self.group)
+            try:
+                if not event.wait(timeout):
+                    raise ClimbError(f"no {topic} within {timeout:.1f} s (is the sim_bridge running?)")
+            finally:
+                self.destroy_subscription(sub)
+            return got[0]
+
+        def _on_plan(self, msg) -> None:
+            with self._cond:
+                self.plans[msg.request_id] = msg
+                self._cond.notify_all()
+
+        def _on_stage(self, stage: str, msg) -> None:
+            with self._cond:
+                self.stage_status.setdefault(msg.id, {})[stage] = (msg.phase, msg.text, time.monotonic())
+                self._cond.notify_all()
+            run = self.run
+            if run is not None and msg.id.startswith(run.id) and not run.done.is_set():
+                run.stage = stage
+                if msg.phase not in ("done", "failed") and run.phase in PLANNING:
+                    phase = "replanning" if run.phase == "replanning" else PLAN_PHASES[stage]
+                    self.status(phase, f"{stage}: {msg.text}"[:200], step=msg.step, n=msg.n_steps,
+                                progress=msg.progress)
+
+        def controller_state(self):
+            data = self.state_bytes
+            return None if data is None else deserialize_message(data, ControllerState)
+
+        # ------------------------------------------------------------------ status
+        def status(self, phase: str, text: str = "", climb_id: str | None = None, step: int = 0, n: int = 0,
+                   progress: float = 0.0) -> None:
+            run = self.run
+            cid = climb_id if climb_id is not None else (run.id if run is not None else "")
+            if run is not None and climb_id is None:
+                run.phase, run.text = phase, text
+            msg = ClimbStatus(header=make_header(self.get_clock().now().nanoseconds * 1e-9), id=cid, phase=phase,
+                              step=int(step), n_steps=int(n), progress=float(progress), text=text[:20000])
+            safe_publish(self.pub_status, msg)
+
+        # ------------------------------------------------------------------ requests
+        def check(self, req: ClimbRequest) -> None:
+            """Every refusal at once (SpecError with the field and the rule)."""
+            check_request(req)
+            if req.command_delay_ticks:
+                delay = self._bridge_param("lockstep.command_delay_ticks")
+                if delay is not None and int(delay) != req.command_delay_ticks:
+                    raise SpecError("command_delay_ticks", f"the running bridge has lockstep.command_delay_ticks "
+                                                           f"{delay}; start the graph with {req.command_delay_ticks}")
+
+        def _bridge_param(self, name: str):
+            req = self._types["GetParameters"].Request(names=[name])
+            try:
+                res = self.call(self.cli_bridge_params, req, timeout=2.0)
+            except ClimbError:
+                return None
+            if not res.values:
+                return None
+            v = res.values[0]
+            return v.integer_value if v.type == 2 else None
+
+        def start_climb(self, req: ClimbRequest) -> tuple[bool, str, str]:
+            """(accepted, id, error): checks, then the climb in the worker."""
+            if self.worker.busy:
+                running = self.run.id if self.run is not None else "?"
+                return False, "", f"busy: climb {running} is running (cancel it with climb/cancel)"
+            try:
+                self.check(req)
+            except ClimbError as exc:
+                return False, "", str(exc)
+            climb_id = time.strftime("climb-%H%M%S-") + uuid.uuid4().hex[:6]
+            run = ClimbRun(climb_id, req)
+            with self._lock:
+                if self.worker.busy:
+                    return False, "", f"busy: climb {self.run.id if self.run else '?'} is running"
+                self.run = run
+                if not self.worker.submit(lambda: self._climb(run), climb_id):
+                    return False, "", "busy: a climb is running"
+            return True, climb_id, ""
+
+        def _on_climb(self, request, response):
+            req = request_from_msg(request, self.get_parameter("robot").value)
+            ok, cid, error = self.start_climb(req)
+            response.accepted, response.id, response.error = ok, cid, error
+            if not ok:
+                self.get_logger().warning(f"climb refused: {error}")
+                self.status("failed", f"refused: {error}", climb_id="")
+            return response
+
+        def _on_cancel(self, request, response):
+            run = self.run
+            if run is None or run.done.is_set() or (request.id and request.id != run.id):
+                response.accepted = False
+                response.error = f"no running climb {request.id!r}" if request.id else "no climb is running"
+                return response
+            run.cancel.set()
+            response.accepted = True
+            return response
+
+        # ------------------------------------------------------------------ action
+        def _on_goal(self, goal) -> Any:
+            return GoalResponse.REJECT if self.worker.busy else GoalResponse.ACCEPT
+
+        def _execute(self, goal_handle):
+            goal = goal_handle.request
+            req = request_from_msg(goal, self.get_parameter("robot").value)
+            ok, cid, error = self.start_climb(req)
+            result = ClimbAction.Result()
+            if not ok:
+                self.status("failed", f"refused: {error}", climb_id="")
+                result.failure_reason = f"refused: {error}"
+                result.robot, result.mode, result.ladder = req.robot, req.mode, ladder_name(req.ladder)
+                result.summary_json = json.dumps({"success": False, "failure_reason": result.failure_reason})
+                goal_handle.abort()
+                return result
+            run = self.run
+            while not run.done.wait(0.5):
+                if goal_handle.is_cancel_requested:
+                    run.cancel.set()
+                fb = ClimbAction.Feedback(id=run.id, phase=run.phase, stage=run.stage, text=run.text[:2000])
+                s = run.session
+                st = self.controller_state() if run.phase in ("executing", "replanning") else None
+                if st is not None and s is not None:
+                    fb.fsm_state = st.fsm_state
+                    fb.stance_index = int(s.done_before + st.transition_index + 1)
+                    fb.n_stances = int(s.n_transitions + 1)
+                    fb.progress = float(s.progress(st.transition_index))
+                try:
+                    goal_handle.publish_feedback(fb)
+                except Exception:  # noqa: BLE001 - the goal went away
+                    pass
+            summary = run.summary or {"success": False, "failure_reason": "no summary"}
+            fill_result(result, run.id, summary)
+            if summary.get("cancelled") and goal_handle.is_cancel_requested:
+                goal_handle.canceled()
+            elif summary.get("success"):
+                goal_handle.succeed()
+            else:
+                goal_handle.abort()
+            return result
+
+        # ------------------------------------------------------------------ service calls
+        def call(self, client, request, timeout: float | None = None):
+            timeout = float(self.get_parameter("service_timeout_s").value) if timeout is None else timeout
+            name = client.srv_name
+            if not client.wait_for_service(timeout_sec=timeout):  # a node still starting: its time
+                raise ClimbError(f"service {name} is not available (within {timeout:.0f} s)")
+            future = client.call_async(request)
+            deadline = time.monotonic() + timeout
+            while not future.done():
+                if time.monotonic() > deadline:
+                    client.remove_pending_request(future)
+                    raise ClimbError(f"service {name}: no answer within {timeout:.0f} s")
+                time.sleep(0.005)
+            if future.exception() is not None:
+                raise ClimbError(f"service {name}: {future.exception()}")
+            return future.result()
+
+        def lifecycle_state(self) -> str:
+            return self.call(self.cli_get, self._types["GetState"].Request()).current_state.label
+
+        def change(self, transition: int, what: str) -> None:
+            req = self._types["ChangeState"].Request()
+            req.transition.id = transition
+            if not self.call(self.cli_change, req).success:
+                raise ClimbError(f"controller: {what} failed (see the controller's log)")
+
+        def set_controller_params(self, values: dict) -> None:
+            from climb_core.params import describe
+            from controller_node.params import ControllerParams
+
+            infos = describe(ControllerParams)
+            values = {k: (float(v) if k in infos and infos[k].type == "float" and not isinstance(v, bool) else v)
+                      for k, v in values.items()}
+            params = [self._Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
+            res = self.call(self.cli_set, self._types["SetParameters"].Request(parameters=params))
+            for (k, _), r in zip(values.items(), res.results):
+                if not r.successful:
+                    raise ClimbError(f"controller parameter {k}: {r.reason}")
+
+        # ------------------------------------------------------------------ the climb
+        def _climb(self, run: ClimbRun) -> None:
+            req = run.req
+            summary = None
+            try:
+                summary = self._climb_steps(run)
+            except Cancelled:
+                summary = dict(run.session.summary if run.session else {}, success=False, cancelled=True,
+                               failure_reason="cancelled")
+            except ClimbError as exc:
+                self.get_logger().error(f"climb {run.id}: {exc}")
+                base = run.session.summary if run.session else {}
+                summary = dict(base, success=False, failure_reason=str(exc))
+            except Exception as exc:  # noqa: BLE001 - the node keeps serving
+                self.get_logger().error(f"climb {run.id} crashed: {type(exc).__name__}: {exc}")
+                summary = {"success": False, "failure_reason": f"internal error: {type(exc).__name__}: {exc}"}
+            finally:
+                if summary is None:
+                    summary = {"success": False, "failure_reason": "ended early (shutting down)"}
+                from .session import base_summary
+
+                full = base_summary(req)
+                full.update(summary)
+                full["id"] = run.id
+                full["bag"] = full.get("bag") or str(self.get_parameter("bag").value)
+                run.summary = full
+                phase = "cancelled" if full.get("cancelled") else ("done" if full.get("success") else "failed")
+                self.status(phase, json.dumps(full), progress=1.0 if full.get("success") else 0.0)
+                self.get_logger().info(f"climb {run.id}: {phase} {full.get('failure_reason', '')}")
+                run.done.set()
+
+        def _climb_steps(self, run: ClimbRun) -> dict:
+            from climb_core import fixtures  # noqa: F401 - fail early when the core is broken
+            from controller_node.params import load_controller_params
+
+            req = run.req
+            name, text = scenario_source(req.ladder)
+            accepted = {"id": run.id, "robot": req.robot, "scenario": text, "scenario_name": name,
+                        "rungs": req.rungs, "mode": req.mode, "seed": req.seed, "descend": req.descend,
+                        "plan_cycles": req.plan_cycles or 0, "command_delay_ticks": req.command_delay_ticks,
+                        "planning_timeout_s": req.plan_timeout_s or 0.0,
+                        "stamp": time.time()}
+            safe_publish(self.pub_request, String(data=json.dumps(accepted)))
+            self._publish_description(req.robot)
+            self._marker_scene = (req.robot, text)
+            self.status("idle", "preparing: the controller and the simulator")
+            fixture = self._start_fixture(req.robot)
+            period = load_controller_params().control_period_s
+            overrides = controller_overrides(req, self.cs, period)
+            overrides.update({"robot": req.robot, "ladder": text, "initial_stance": fixture})
+            self._prepare_controller(overrides)
+            if run.cancel.is_set():
+                raise Cancelled()
+            if self.get_parameter("reset_sim").value:
+                res = self.call(self.cli_reset, self._types["SimReset"].Request(
+                    robot=req.robot, ladder=text, initial_posture=fixture, seed=int(req.seed or 0)))
+                if not res.success:
+                    raise ClimbError(f"sim/reset refused: {res.error}")
+                # the new world's first state must reach the controller before it activates (it
+                # resets its contacts on the first state it ticks)
+                self.wait_message("joint_states", 3.0)
+                time.sleep(0.05)
+            count0 = self.state_count
+            self.change(ACTIVATE, "activate")
+            self._wait_heartbeat(count0, run)
+            plans = RosPlanSource(self, run, name if name in _shipped() else text)
+            executor = RosExecutor(self, run)
+            judge = RosJudge(self)
+            session = ClimbSession(req, self.cs, plans, executor, judge,
+                                   say=lambda m: self.get_logger().info(m), on_phase=self._on_phase(run))
+            run.session = session
+            executor.session = session
+            return session.run()
+
+        def _on_phase(self, run: ClimbRun):
+            names = {"planning": "guide_path"}
+
+            def on_phase(phase: str, text: str) -> None:
+                if phase in ("done", "failed", "cancelled"):
+                    return  # the final status carries the summary
+                if phase == "executing":
+                    run.stage = "controller"
+                self.status(names.get(phase, phase), text)
+            return on_phase
+
+        def _start_fixture(self, robot: str) -> str:
+            from planner_node.primitives import load_library
+            from planner_node.settings import load_settings
+
+            p = load_settings().planning
+            return load_library(robot, p.strategy, p.primitives_dir).initial_fixture
+
+        def _prepare_controller(self, overrides: dict) -> None:
+            state = self.lifecycle_state()
+            if state == "active":
+                self.change(DEACTIVATE, "deactivate")
+                state = "inactive"
+            if state == "inactive":
+                self.change(CLEANUP, "cleanup")
+                state = "unconfigured"
+            if state != "unconfigured":
+                raise ClimbError(f"controller is {state}: cannot configure it")
+            self.set_controller_params(overrides)
+            self.change(CONFIGURE, "configure")
+
+        def _wait_heartbeat(self, count0: int, run: ClimbRun) -> None:
+            timeout = max(5.0, 4 * float(self.get_parameter("heartbeat_timeout_s").value))
+            deadline = time.monotonic() + timeout
+            with self._cond:
+                while self.state_count <= count0:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        raise ClimbError(f"dead node: no controller/state within {timeout:.1f} s of the "
+                                         f"controller's activation (controller or sim_bridge; or a controller "
+                                         f"that ignores the states of a reset simulator, whose time restarts at 0)")
+                    self._cond.wait(min(left, 0.1))
+            st = self.controller_state()
+            if st is not None and st.header.stamp.sec > 2:
+                raise ClimbError("the controller did not restart with the simulator (its states did not restart "
+                                 "near t = 0 after sim/reset)")
+
+        def hold(self) -> str:
+            try:
+                res = self.call(self.cli_hold, self._types["Trigger"].Request(), timeout=5.0)
+                return "" if res.success else res.message
+            except ClimbError as exc:
+                return str(exc)
+
+        def measured_q(self, joint_names: list[str]) -> np.ndarray:
+            js = self.wait_message("joint_states", 3.0)
+            base = self.wait_message("sim/base_truth", 3.0)
+            j = self._js_reader.read(js)
+            b = cdr.read_odometry(base)
+            index = {n: i for i, n in enumerate(j.names)}
+            missing = [n for n in joint_names if n not in index]
+            if missing:
+                raise ClimbError(f"joint_states lacks {missing[0]}")
+            q = np.empty(7 + len(joint_names))
+            q[:7] = b.pose[:7]
+            q[7:] = [j.position[index[n]] for n in joint_names]
+            return q
+
+        # ------------------------------------------------------------------ visualisation
+        def _publish_description(self, robot: str) -> None:
+            from climb_core.robot import load_robot_config
+
+            try:
+                urdf = load_robot_config(robot).urdf_path.read_text()
+            except (OSError, ClimbError) as exc:
+                self.get_logger().warning(f"robot_description: {exc}")
+                return
+            safe_publish(self.pub_description, String(data=urdf))
+
+        def _publish_markers(self) -> None:
+            scene = self._marker_scene
+            if scene is None:
+                return
+            msg = build_markers(self, scene)
+            if msg is not None:
+                safe_publish(self.pub_markers, msg)
+
+    # ---------------------------------------------------------------------------- the ports
+    class RosPlanSource:
+        """Plan source port: plan/request -> guide_path -> contact_search -> primitive_adaptation ->
+        whole_body_plan (the controller takes the plan from the same topic)."""
+
+        def __init__(self, node: CoordinatorNode, run: ClimbRun, scenario: str):
+            self.node, self.run, self.scenario = node, run, scenario
+            self.attempt = 0
+
+        def plan(self, steps: int, start=None) -> PlanOutcome:
+            from msgs_py.contact import whole_body_plan_from_msg
+            from planner_node.plan_io import stance_to_dict
+
+            node, run, req = self.node, self.run, self.run.req
+            self.attempt += 1
+            rid = f"{run.id}-{self.attempt}"
+            request = {"id": rid, "robot": req.robot, "scenario": self.scenario, "rungs": int(steps),
+                       "seed": req.seed, "timeout_s": req.plan_timeout_s, "descend": bool(req.descend)}
+            if start is not None:
+                q, stance = start
+                request["start"] = {"q": [float(x) for x in q], "stance": stance_to_dict(stance)}
+            t0 = time.monotonic()
+            safe_publish(node.pub_plan_request, String(data=json.dumps(request)))
+            from planner_node.settings import load_settings
+
+            limit = (req.plan_timeout_s or load_settings().planning.timeout_s) \
+                + float(node.get_parameter("plan_wait_margin_s").value)
+            deadline = t0 + limit
+            failure = ""
+            msg = None
+            with node._cond:
+                while True:
+                    msg = node.plans.pop(rid, None)
+                    if msg is not None:
+                        break
+                    stages = node.stage_status.get(rid, {})
+                    failed = [(s, t) for s, (ph, t, _) in stages.items() if ph == "failed"]
+                    if failed:
+                        failure = f"{failed[0][0]}: {failed[0][1]}"
+                        break
+                    if run.cancel.is_set():
+                        raise Cancelled()
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        silent = [s for s in PLAN_STAGES if s not in stages]
+                        failure = (f"no whole_body_plan within {limit:.0f} s"
+                                   + (f" (no status from {', '.join(silent)}: is the node running?)" if silent else ""))
+                        break
+                    node._cond.wait(min(left, 0.1))
+                stages = dict(node.stage_status.pop(rid, {}))
+            t_plan = time.monotonic()
+            stage_times, prev = {}, t0
+            for s in PLAN_STAGES:
+                if s in stages and stages[s][0] == "done":
+                    stage_times[s] = max(0.0, stages[s][2] - prev)
+                    prev = stages[s][2]
+            stats: dict = {}
+            done = stages.get("primitive_adaptation")
+            if done is not None and done[0] == "done":
+                try:
+                    stats = json.loads(done[1])
+                except ValueError:
+                    stats = {}
+            if "descent_start_transition" in stats:
+                stats["descent_start"] = stats["descent_start_transition"]
+            if msg is None:
+                return PlanOutcome(False, None, t_plan - t0, failure=failure or "no plan", stats=stats,
+                                   stages_s=stage_times)
+            try:
+                plan = whole_body_plan_from_msg(msg)
+            except (ClimbError, ValueError) as exc:
+                return PlanOutcome(False, None, t_plan - t0, failure=f"whole_body_plan: {exc}")
+            stage_times.setdefault("primitive_adaptation", max(0.0, t_plan - prev))
+            return PlanOutcome(True, plan, t_plan - t0, 1 + len(plan.transitions), stats=stats,
+                               stages_s=stage_times, start_projection_mm=stats.get("start_projection_mm"))
+
+    class RosExecutor:
+        """Executor port: the controller node executes the plan it took from whole_body_plan; this
+        watches controller/state (heartbeat, FSM, transitions) and sim/contacts (falls)."""
+
+        def __init__(self, node: CoordinatorNode, run: ClimbRun):
+            self.node, self.climb = node, run
+            self.session: ClimbSession | None = None
+            self.plan = None
+            self.t0_wall = time.monotonic()
+            self.t0_sim: float | None = None
+            self.last = ExecStatus()
+            self.ticks: list[float] = []  # [ms] controller tick times (sampled from controller/state)
+            self._seen = -1
+
+        def start(self, plan) -> None:
+            self.plan = plan
+            self._picked = False
+            self._index = -1
+            self._start_sim = None
+
+        def _poll(self) -> ExecStatus | None:
+            """The newest controller/state as a status (None when none yet)."""
+            st = self.node.controller_state()
+            if st is None:
+                return None
+            t = st.header.stamp.sec + st.header.stamp.nanosec * 1e-9
+            if self.node.state_count != self._seen:
+                self._seen = self.node.state_count
+                self.ticks.append(float(st.tick_time_ms))
+            if self.t0_sim is None:
+                self.t0_sim = t
+            c = self.node.contacts
+            fell = bool(c.fell) if c is not None else False
+            s = ExecStatus(sim_time_s=t, fsm_state=st.fsm_state, transition_index=int(st.transition_index),
+                           fell=fell, fall_reason=c.fall_reason if fell else "", qp_failures=int(st.qp_failures))
+            self.last = s
+            return s
+
+        def _wait(self, done, budget_s: float | None) -> ExecStatus:
+            node, run = self.node, self.climb
+            dead_after = float(node.get_parameter("heartbeat_timeout_s").value)
+            seen = node.state_count
+            while True:
+                with node._cond:
+                    if node.state_count == seen:
+                        node._cond.wait(0.05)
+                    seen = node.state_count
+                now = time.monotonic()
+                s = self._poll() or ExecStatus()
+                if self._start_sim is None:
+                    self._start_sim = s.sim_time_s
+                if run.cancel.is_set():
+                    why = node.hold()
+                    s.cancelled = True
+                    s.fault = "cancelled" + (f" (controller/hold: {why})" if why else "")
+                    return s
+                silent = now - node.state_at
+                # the controller is dead when the bridge went on without it (in lock-step the
+                # bridge steps on alone only once it declared the controller lost); both silent
+                # long: the bridge (a machine this loaded is slow, not dead, for a while)
+                if silent > dead_after and node.contacts_at > node.state_at + 0.5 * dead_after:
+                    s.fault = (f"dead node: controller: no controller/state for {silent:.1f} s while the "
+                               f"sim_bridge runs on (heartbeat bound {dead_after:.1f} s)")
+                    return s
+                if silent > max(5.0, 5.0 * dead_after):
+                    s.fault = (f"dead node: sim_bridge (or both): no controller/state and no sim/contacts for "
+                               f"{silent:.1f} s")
+                    return s
+                if s.fell:
+                    return s
+                if self.session is not None and s.transition_index != self._index and s.fsm_state not in (
+                        "idle", "hold", "replan_needed"):
+                    self._index = s.transition_index
+                    self.session.on_transition(s.transition_index, s.sim_time_s)
+                if done(s):
+                    return s
+                if budget_s is not None and s.sim_time_s - self._start_sim > budget_s:
+                    return s
+
+        def run(self, budget_s: float, stop: tuple[str, ...]) -> ExecStatus:
+            def done(s: ExecStatus) -> bool:
+                if s.fsm_state not in stop and s.fsm_state != "idle":
+                    self._picked = True
+                    if self.climb.first_command_at is None:  # the controller acts on the first plan
+                        self.climb.first_command_at = time.monotonic()
+                return s.fsm_state == "failure" or (self._picked and s.fsm_state in stop)
+            return self._wait(done, budget_s)
+
+        def settle(self, duration_s: float) -> ExecStatus:
+            t_end = [None]
+
+            def done(s: ExecStatus) -> bool:
+                if t_end[0] is None:
+                    t_end[0] = s.sim_time_s + duration_s
+                return s.sim_time_s >= t_end[0]
+            return self._wait(done, None)
+
+        def measured_q(self) -> np.ndarray:
+            return self.node.measured_q(list(self.plan.joint_names))
+
+        def hold(self) -> None:
+            self.node.hold()
+
+        def report(self) -> dict:
+            wall = time.monotonic() - self.t0_wall
+            sim = self.last.sim_time_s - (self.t0_sim or 0.0)
+            r = {"wall_time_s": round(wall, 2), "real_time_factor": round(sim / wall, 3) if wall > 0 else 0.0,
+                 "graph": True}
+            if self.ticks:
+                a = np.asarray(self.ticks)
+                r["control_tick_ms"] = {"p50": round(float(np.percentile(a, 50)), 3),
+                                        "p99": round(float(np.percentile(a, 99)), 3), "max": round(float(a.max()), 3)}
+            run = self.climb
+            if run.first_command_at is not None:
+                r["coordinator_overhead_s"] = round(run.first_command_at - run.accepted_at, 3)
+            return r
+
+    class RosJudge:
+        """Judge port: the bridge's sim/contacts (ground truth, sim-only topic)."""
+
+        def __init__(self, node: CoordinatorNode):
+            self.node = node
+
+        def _limbs(self) -> dict:
+            c = self.node.contacts
+            if c is None:
+                return {}
+            return {limb: (c.normal_force[i], c.surface[i], c.grasped[i]) for i, limb in enumerate(c.limbs)}
+
+        def feet_rungs(self) -> dict:
+            from climb_core.contact import FEET
+
+            from .judge import rung_index
+
+            limbs = self._limbs()
+            out = {}
+            for foot in FEET:
+                v = limbs.get(foot)
+                out[foot] = rung_index(v[1]) if v is not None and v[0] >= self.node.cs.foot_force_min and v[1] else None
+            return out
+
+        def grasps(self) -> dict:
+            from climb_core.contact import HANDS
+
+            limbs = self._limbs()
+            return {h: (limbs[h][1] if limbs[h][2] else "") for h in HANDS if h in limbs}
+
+    def _shipped() -> list[str]:
+        from climb_core.ladder import available_ladders
+
+        return available_ladders()
+
+    node = CoordinatorNode()
+    # the summary's tick figures: controller/state tick_time_ms, sampled by the executor's polls
+    return node
+
+
+def fill_result(result: Any, climb_id: str, summary: dict) -> Any:
+    """The action result's typed fields from the JSON summary (+ summary_json)."""
+    result.id = climb_id
+    result.success = bool(summary.get("success", False))
+    result.cancelled = bool(summary.get("cancelled", False))
+    result.failure_reason = str(summary.get("failure_reason", ""))
+    result.robot = str(summary.get("robot", ""))
+    result.ladder = str(summary.get("ladder", ""))
+    result.mode = str(summary.get("mode", ""))
+    result.rungs_requested = int(summary.get("rungs_requested", 0) or 0)
+    result.rungs_reached = int(summary.get("rungs_reached", 0) or 0)
+    result.plan_time_s = float(summary.get("plan_time_s", 0.0) or 0.0)
+    result.n_stances = int(summary.get("n_stances", 0) or 0)
+    result.sim_time_s = float(summary.get("sim_time_s", 0.0) or 0.0)
+    result.fell = bool(summary.get("fell", False))
+    replans = summary.get("replans", [])
+    result.replans = len(replans) if isinstance(replans, list) else int(replans or 0)
+    result.bag = str(summary.get("bag", ""))
+    result.summary_json = json.dumps(summary)
+    return result
+
+
+def build_markers(node: Any, scene: tuple[str, str]):
+    """climb/markers: climb_coordinator.markers (the scene, stances, loads, CoM) when present,
+    else the scene's surfaces alone."""
+    try:
+        from . import markers  # noqa: F401
+    except ImportError:
+        markers = None
+    if markers is not None and hasattr(markers, "build_markers"):
+        try:
+            return markers.build_markers(node, scene)
+        except TypeError:
+            pass
+    return scene_markers(node, scene[1])
+
+
+_SCENE_CACHE: dict[str, Any] = {}
+
+
+def scene_markers(node: Any, scenario_text: str):
+    """A MarkerArray of the scenario's surfaces (cylinders and boxes in the world frame)."""
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    from climb_core.environment import build_environment
+    from climb_core.environment import quaternion_xyzw
+    from climb_core.ladder import load_scenario
+
+    env = _SCENE_CACHE.get(scenario_text)
+    if env is None:
+        env = _SCENE_CACHE[scenario_text] = build_environment(load_scenario(scenario_text), perturbed=True)
+    out = MarkerArray()
+    stamp = node.get_clock().now().to_msg()
+    for i, (name, s) in enumerate(sorted(env.surfaces.items())):
+        if s.shape == "plane":
+            continue
+        m = Marker()
+        m.header.frame_id = "world"
+        m.header.stamp = stamp
+        m.ns = "scene"
+        m.id = i
+        m.action = Marker.ADD
+        T = s.T_world_primitive()
+        m.type = Marker.CYLINDER if s.shape == "cylinder" else Marker.CUBE
+        size = 2.0 * s.primitive_half_extents()
+        m.scale.x, m.scale.y, m.scale.z = float(size[0]), float(size[1]), float(size[2])
+        p = T[:3, 3]
+        m.pose.position.x, m.pose.position.y, m.pose.position.z = float(p[0]), float(p[1]), float(p[2])
+        qx, qy, qz, qw = quaternion_xyzw(T[:3, :3])
+        m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z, m.pose.orientation.w = qx, qy, qz, qw
+        m.color.r, m.color.g, m.color.b, m.color.a = (0.8, 0.6, 0.3, 1.0) if s.role == "rung" else (0.5, 0.5, 0.5, 1.0)
+        out.markers.append(m)
+    return out
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main())
