@@ -67,7 +67,8 @@ def rtps_listener_sockets(report: dict) -> list[str]:
 
 def assert_loopback_report(report: dict, domain_id: int) -> None:
     env = report["env"]
-    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    # the profile applied as is: LOCALHOST would add sockets on 0.0.0.0 and eth0 (ros_env)
+    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT"
     assert pathlib.Path(env["FASTRTPS_DEFAULT_PROFILES_FILE"]).resolve() == PROFILE.resolve()
     assert env["ROS_DOMAIN_ID"] == str(domain_id)
     assert report["domain_id"] == domain_id  # what rcl really uses, not only the variable
@@ -76,6 +77,7 @@ def assert_loopback_report(report: dict, domain_id: int) -> None:
     # the participant's unicast discovery and user-data ports, and no multicast listener
     assert len(listeners) >= 2, report["udp_sockets"]
     assert all(s.startswith("127.0.0.1:") for s in listeners), listeners
+    assert all(s.startswith("127.0.0.1:") for s in report["udp_sockets"]), report["udp_sockets"]
 
 
 def test_profile_restricts_every_transport_to_loopback():
@@ -95,6 +97,29 @@ def test_profile_restricts_every_transport_to_loopback():
         if descriptors[t].findtext("f:type", namespaces=NS).strip() == "UDPv4":
             addresses = [a.text.strip() for a in descriptors[t].findall("f:interfaceWhiteList/f:address", NS)]
             assert addresses == ["127.0.0.1"], (t, addresses)
+            # unicast discovery reaches this many participants of one domain (Fast DDS default: 4)
+            assert int(descriptors[t].findtext("f:maxInitialPeersRange", namespaces=NS)) >= 32
+    # unicast discovery and user data on loopback, no multicast locator at all
+    for path in ("f:builtin/f:metatrafficUnicastLocatorList", "f:builtin/f:initialPeersList",
+                 "f:defaultUnicastLocatorList"):
+        addresses = [a.text.strip() for a in rtps.findall(f"{path}/f:locator/f:udpv4/f:address", NS)]
+        assert addresses == ["127.0.0.1"], (path, addresses)
+    assert not root.findall(".//f:metatrafficMulticastLocatorList", NS)
+    assert not root.findall(".//f:defaultMulticastLocatorList", NS)
+
+
+def test_ros_env_applies_the_profile_as_is():
+    """LOCALHOST (what a shell may export) becomes SYSTEM_DEFAULT while the project's profile is in
+    force; another profile keeps the caller's range."""
+    profile = str(fastdds_profile_path())
+    assert local_dds_env({})["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT"
+    assert local_dds_env({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})["ROS_AUTOMATIC_DISCOVERY_RANGE"] == \
+        "SYSTEM_DEFAULT"
+    env = local_dds_env({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "FASTRTPS_DEFAULT_PROFILES_FILE": profile})
+    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT"
+    other = local_dds_env({"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "FASTRTPS_DEFAULT_PROFILES_FILE": "/x.xml"})
+    assert other["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    assert local_dds_env({"FASTRTPS_DEFAULT_PROFILES_FILE": ""})["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
 
 
 def test_spawned_node_gets_the_loopback_settings():

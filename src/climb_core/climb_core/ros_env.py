@@ -1,8 +1,17 @@
 """Keep DDS on this machine, and the process-level settings of an executable (signals, CPUs).
 
 Every process the project starts calls :func:`apply_local_dds_env` before ``rclpy.init()`` (or
-passes :func:`local_dds_env` to a child process). The user can still override any of the three
-variables on purpose; nothing here imports rclpy (the ROS-side helpers are in msgs_py.node_kit).
+passes :func:`local_dds_env` to a child process). The user can still override the variables on
+purpose; nothing here imports rclpy (the ROS-side helpers are in msgs_py.node_kit).
+
+What keeps every socket on 127.0.0.1 (measured from /proc/<pid>/net/{udp,udp6,tcp,tcp6}, a bare
+rclpy node included; docs/interfaces.md): the project's Fast DDS profile
+(config/fastdds_localhost.xml: loopback UDP + shared memory, unicast discovery on 127.0.0.1, no
+multicast) applied as is, i.e. with ``ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT``. With
+``LOCALHOST`` rmw_fastrtps adds a UDP sender on 0.0.0.0 and one on the eth0 address, so while the
+project's profile is in force LOCALHOST (or no range) becomes SYSTEM_DEFAULT here, whatever the
+caller's shell exported. A user who wants another profile sets FASTRTPS_DEFAULT_PROFILES_FILE (an
+empty value: none) and then chooses the range.
 """
 from __future__ import annotations
 
@@ -32,14 +41,33 @@ def fastdds_profile_path() -> pathlib.Path:
     return project_root() / "config" / "fastdds_localhost.xml"
 
 
+#: discovery ranges replaced by SYSTEM_DEFAULT while the project's profile is in force
+_RANGES_OVERRIDDEN = ("", "LOCALHOST")
+
+
+def uses_project_profile(env: Mapping[str, str]) -> bool:
+    """The Fast DDS profile in force in ``env`` is config/fastdds_localhost.xml."""
+    path = env.get("FASTRTPS_DEFAULT_PROFILES_FILE", "")
+    if not path:
+        return False
+    try:
+        return pathlib.Path(path).resolve() == fastdds_profile_path().resolve()
+    except (OSError, FileNotFoundError):
+        return False
+
+
 def local_dds_env(base: Mapping[str, str] | None = None, domain_id: int | None = None) -> dict[str, str]:
     """Return a copy of ``base`` (default: os.environ) with the loopback DDS settings filled in.
 
-    Values already present in ``base`` win, except ``domain_id`` when given explicitly.
+    Values already present in ``base`` win, except ``domain_id`` when given explicitly and the
+    discovery range: LOCALHOST (or none) becomes SYSTEM_DEFAULT while the project's loopback
+    profile is in force (LOCALHOST opens sockets on 0.0.0.0 and eth0 next to the profile's).
     """
     env = dict(os.environ if base is None else base)
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(fastdds_profile_path()))
+    if uses_project_profile(env) and env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").upper() in _RANGES_OVERRIDDEN:
+        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SYSTEM_DEFAULT"
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # another profile: rmw's loopback range
     env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     if domain_id is not None:
         env["ROS_DOMAIN_ID"] = str(domain_id)
