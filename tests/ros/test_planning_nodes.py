@@ -312,14 +312,14 @@ def test_the_search_strategy_is_refused_with_the_reason(graph):
 
 def test_a_contact_plan_while_the_adaptation_is_busy_is_refused_with_its_own_id(graph):
     client = graph
-    request = dict(REQUEST, id="busy-a")
+    request = dict(REQUEST, id="busy-a", rungs=1)
     client.request(request)
     client.spin_until(lambda: client.of("contact_plan", "busy-a"), 60.0, "busy-a's contact plan")
     client.spin_until(lambda: any(t == "primitive_adaptation/status" for t, _ in
                                   client.status("busy-a", "adaptation")), 30.0, "busy-a planning")
     second = client.of("contact_plan", "busy-a")[-1]
     second.request_id = "busy-b"
-    second.request_json = json.dumps(dict(REQUEST, id="busy-b"))
+    second.request_json = json.dumps(dict(request, id="busy-b"))
     client.pub_contact.publish(second)
     client.spin_until(lambda: client.status("busy-b", "failed"), 30.0, "the refusal")
     (topic, refusal), = client.status("busy-b", "failed")
