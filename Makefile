@@ -2,7 +2,8 @@
 SHELL := /bin/bash
 VENV := .venv
 PY := $(VENV)/bin/python
-export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+# The loopback profile applied as is (every socket on 127.0.0.1, measured: docs/interfaces.md)
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= SYSTEM_DEFAULT
 export FASTRTPS_DEFAULT_PROFILES_FILE ?= $(CURDIR)/config/fastdds_localhost.xml
 export ROS_DOMAIN_ID ?= 42
 export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp

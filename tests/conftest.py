@@ -10,8 +10,10 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 # A private domain per session (the test runner's pid spreads concurrent runs over 0..101).
 if "ROS_DOMAIN_ID" not in os.environ or os.environ.get("CLIMB_TEST_PRIVATE_DOMAIN", "1") == "1":
     os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 100)
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+# The project's loopback profile applied as is: with it, SYSTEM_DEFAULT binds every socket to
+# 127.0.0.1, while LOCALHOST would add senders on 0.0.0.0 and eth0 (measured, climb_core.ros_env).
 os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(ROOT / "config" / "fastdds_localhost.xml")
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SYSTEM_DEFAULT"
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 os.environ.setdefault("CLIMB_ROOT", str(ROOT))
 
