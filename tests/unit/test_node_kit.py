@@ -279,13 +279,17 @@ CHILD = textwrap.dedent("""
         if mode == "slow_factory":
             print("ready", flush=True)
             time.sleep(3.0)
+        if mode == "busy_thread":  # a long job in a non-daemon thread (an executor pool's callback)
+            threading.Thread(target=time.sleep, args=(120.0,), daemon=False).start()
+            worker = node_kit.Worker(name="planner")
+            worker.submit(lambda: time.sleep(120.0), "long")
         return Talker()
 
     sys.exit(node_kit.run_node(factory, name="kit_child"))
 """)
 
 
-def run_child(mode, sig=None, delay=0.0):
+def run_child(mode, sig=None, delay=0.0, timeout=TIMEOUT_S):
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
     child = subprocess.Popen([sys.executable, "-c", CHILD, mode], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -296,7 +300,7 @@ def run_child(mode, sig=None, delay=0.0):
             assert line.strip() == "ready", (line, child.stderr.read() if child.poll() is not None else "")
             time.sleep(delay)
             child.send_signal(sig)
-        out, err = child.communicate(timeout=TIMEOUT_S)
+        out, err = child.communicate(timeout=timeout)
     finally:
         if child.poll() is None:
             child.kill()
@@ -315,8 +319,9 @@ def test_run_node_exit_codes():
                                             (signal.SIGTERM, 0.5, "slow_factory"),
                                             (signal.SIGINT, 0.0, "slow_factory"),
                                             (signal.SIGINT, 0.2, "slow_import"),
-                                            (signal.SIGTERM, 0.2, "slow_import")])
+                                            (signal.SIGTERM, 0.2, "slow_import"),
+                                            (signal.SIGTERM, 0.3, "busy_thread")])
 def test_run_node_signal_exits_zero(sig, delay, mode):
-    code, err = run_child(mode, sig, delay)
+    code, err = run_child(mode, sig, delay, timeout=40.0)  # a thread still running must not hold the exit
     assert code == 0, err
     assert "Traceback" not in err, err

@@ -5,7 +5,8 @@
   loop ends at its next turn, then the nodes are destroyed and the context shut down, all in the
   main thread, so no publish of the main thread can race the shutdown), exit code 0 on a signal
   at any moment, 2 with a one-line message when the factory raises ClimbError or a parameter is
-  refused, 1 on a bug.
+  refused, 1 on a bug. A thread still running at the end (a planning job) ends with the process
+  (``os._exit`` once everything is torn down: the interpreter's finalization would abort on it).
 - :func:`declare_from_schema`: every field of a climb_core.params schema declared with a
   ParameterDescriptor (description with the unit, range, choices, read_only) and an on-set
   callback that validates a change with climb_core.params.parse_params (the YAML loader's parser).
@@ -32,6 +33,7 @@ the heavy imports::
 from __future__ import annotations
 
 import math
+import os
 import sys
 import threading
 import traceback
@@ -199,7 +201,24 @@ def run_node(factory: Callable[[], Any], args: list[str] | None = None, *, execu
     finally:
         _STOP.set()  # worker threads and custom loops see the end
         _teardown(nodes, ex)
+    _exit_if_threads_remain(code)
     return code
+
+
+def _exit_if_threads_remain(code: int) -> None:
+    """A thread still running (a planning Worker in C++ code, an executor's pool thread in a long
+    callback) would be unwound by the interpreter's finalization: "FATAL: exception not rethrown",
+    abort, exit -6 (measured on guide_path signalled mid-planning), or joined forever. The nodes
+    are destroyed and the context is shut down by now: end the process here, streams flushed."""
+    others = [t for t in threading.enumerate() if t is not threading.main_thread() and t.is_alive()]
+    if not others:
+        return
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 def _teardown(nodes: Sequence[Any], executor) -> None:
