@@ -13,6 +13,7 @@ three status topics.
 - bad requests: a malformed one fails at guide_path naming the field, `strategy: search` is refused
   with the reason, a contact plan arriving while the adaptation is busy is refused with ITS id;
 - the strategy parameter: validated on set, `search` refused;
+- garbage bytes on every input: reported on diagnostics, the nodes keep serving;
 - SIGTERM / SIGINT mid-planning: every node exits 0 without a traceback.
 Plus the YAML files say what the code's defaults are.
 """
@@ -120,7 +121,12 @@ class Client:
         for topic in STATUS:
             self.node.create_subscription(ClimbStatus, topic, lambda m, t=topic: self.log.append((t, m)),
                                           qos_for(topic))
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self.node.create_subscription(DiagnosticArray, "diagnostics", lambda m: self.log.append(("diagnostics", m)),
+                                      qos_for("diagnostics"))
         self.pub_request = self.node.create_publisher(String, "plan/request", qos_for("plan/request"))
+        self.pub_guide = self.node.create_publisher(GuidePath, "guide_path", qos_for("guide_path"))
         self.pub_contact = self.node.create_publisher(ContactPlan, "contact_plan", qos_for("contact_plan"))
         self.String = String
         self.executor = SingleThreadedExecutor(context=self.context)
@@ -361,6 +367,30 @@ def test_the_strategy_parameter_is_validated_and_search_refused(graph):
         assert topic == "guide_path/status" and "not implemented" in msg.text
     finally:
         assert set_parameter(client, "guide_path", "strategy", "primitives").successful
+
+
+def test_garbage_bytes_on_every_input_are_reported_and_the_nodes_keep_serving(graph):
+    client = graph
+    client.spin_until(lambda: client.pub_guide.get_subscription_count() > 0, 20.0, "contact_search")
+    time.sleep(0.5)
+    for pub in (client.pub_request, client.pub_guide, client.pub_contact):
+        pub.publish(b"\x00\x01\x00\x00" + bytes(range(13)))  # 17 bytes, not the topic's type
+
+    def reported():
+        names = {s.name for t, m in client.log if t == "diagnostics" for s in m.status}
+        return {"guide_path/plan/request", "contact_search/guide_path", "primitive_adaptation/contact_plan"} <= names
+
+    client.spin_until(reported, 20.0, "three diagnostics")
+    # each node still answers its input (here a malformed one, answered at once)
+    from climb_msgs.msg import ContactPlan, GuidePath
+
+    client.request(dict(REQUEST, id="after-garbage-1", rungs=0))
+    client.pub_guide.publish(GuidePath(request_id="after-garbage-2", request_json='{"id": "after-garbage-2"}'))
+    client.pub_contact.publish(ContactPlan(request_id="after-garbage-3", request_json='{"id": "after-garbage-3"}'))
+    client.spin_until(lambda: all(client.status(f"after-garbage-{k}", "failed") for k in (1, 2, 3)), 20.0, "answers")
+    for k, topic in enumerate(STATUS, start=1):
+        (t, msg), = client.status(f"after-garbage-{k}", "failed")
+        assert t == topic and "request.rungs" in msg.text
 
 
 def test_signals_mid_planning_exit_every_node_cleanly(graph):

@@ -120,7 +120,7 @@ def make_node():
     from std_msgs.msg import String
 
     from msgs_py.contact import contact_plan_from_msg, whole_body_plan_to_msg
-    from msgs_py.node_kit import guarded, safe_publish
+    from msgs_py.node_kit import safe_publish
     from msgs_py.topics import qos_for
 
     from .node_params import AdaptationParams, node_defaults, planner_settings
@@ -131,11 +131,8 @@ def make_node():
         def __init__(self) -> None:
             super().__init__(NODE_NAME, AdaptationParams, node_defaults(NODE_NAME), "adaptation")
             self.pub_plan = self.create_publisher(WholeBodyPlan, "whole_body_plan", qos_for("whole_body_plan"))
-            self.create_subscription(String, "primitive_adaptation/request",
-                                     guarded(self, self._on_request, "primitive_adaptation/request"),
-                                     qos_for("primitive_adaptation/request"))
-            self.create_subscription(ContactPlan, "contact_plan", guarded(self, self._on_contact_plan, "contact_plan"),
-                                     qos_for("contact_plan"))
+            self.subscribe(String, "primitive_adaptation/request", self._on_request)
+            self.subscribe(ContactPlan, "contact_plan", self._on_contact_plan)
             self.get_logger().info("primitive_adaptation ready")
             self.warm_up(planner_settings(self.params), self.params.planning.robot)
 

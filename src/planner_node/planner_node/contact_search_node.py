@@ -27,7 +27,7 @@ def make_node():
 
     from climb_core.errors import SpecError
     from msgs_py.contact import contact_plan_to_msg, guide_path_from_msg
-    from msgs_py.node_kit import guarded, safe_publish
+    from msgs_py.node_kit import safe_publish
     from msgs_py.topics import qos_for
 
     from .node_params import ContactSearchParams, node_defaults, stage_settings
@@ -38,8 +38,7 @@ def make_node():
         def __init__(self) -> None:
             super().__init__(NODE_NAME, ContactSearchParams, node_defaults(NODE_NAME), "contact_search")
             self.pub_plan = self.create_publisher(ContactPlan, "contact_plan", qos_for("contact_plan"))
-            self.create_subscription(GuidePath, "guide_path", guarded(self, self._on_guide_path, "guide_path"),
-                                     qos_for("guide_path"))
+            self.subscribe(GuidePath, "guide_path", self._on_guide_path)
             self.get_logger().info("contact_search ready")
             self.warm_up(stage_settings(self.params.library, self.params.primitives_dir))
 

@@ -28,7 +28,7 @@ def make_node():
 
     from climb_core.errors import SpecError
     from msgs_py.contact import guide_path_to_msg
-    from msgs_py.node_kit import guarded, safe_publish
+    from msgs_py.node_kit import safe_publish
     from msgs_py.topics import qos_for
 
     from .node_params import GuidePathParams, node_defaults, stage_settings
@@ -39,8 +39,7 @@ def make_node():
         def __init__(self) -> None:
             super().__init__(NODE_NAME, GuidePathParams, node_defaults(NODE_NAME), "guide_path")
             self.pub_path = self.create_publisher(GuidePath, "guide_path", qos_for("guide_path"))
-            self.create_subscription(String, "plan/request", guarded(self, self._on_request, "plan/request"),
-                                     qos_for("plan/request"))
+            self.subscribe(String, "plan/request", self._on_request)
             self.get_logger().info("guide_path ready")
             self.warm_up(stage_settings(self.params.library, self.params.primitives_dir))
 

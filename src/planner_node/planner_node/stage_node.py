@@ -24,7 +24,7 @@ from climb_msgs.msg import ClimbStatus
 from rclpy.node import Node
 
 from climb_core.errors import ClimbError, InfeasibleError, SpecError
-from msgs_py.node_kit import Worker, declare_from_schema, guarded, safe_publish
+from msgs_py.node_kit import Worker, declare_from_schema, decode, diagnose, guarded, safe_publish
 from msgs_py.stamps import make_header
 from msgs_py.topics import qos_for
 
@@ -64,6 +64,21 @@ class StageNode(Node):
                 self.get_logger().info(f"warm-up done in {time.perf_counter() - t0:.1f} s")
 
         threading.Thread(target=run, name=f"{self.get_name()}_warm_up", daemon=True).start()
+
+    # -------------------------------------------------------------- inputs
+    def subscribe(self, msg_type: type, topic: str, handler: Callable[[Any], None]) -> None:
+        """A raw subscription decoded in a guarded callback: bytes that are not a ``msg_type`` are
+        reported on ``diagnostics`` (the type and the size) instead of failing in the executor."""
+        def on_bytes(data: bytes) -> None:
+            try:
+                msg = decode(data, msg_type)
+            except ValueError as exc:
+                self.get_logger().warning(f"{topic}: {exc}")
+                diagnose(self, f"{self.get_name()}/{topic}", f"rejected {topic}: {exc}", values={"bytes": len(data)})
+                return
+            handler(msg)
+
+        self.create_subscription(msg_type, topic, guarded(self, on_bytes, topic), qos_for(topic), raw=True)
 
     # -------------------------------------------------------------- parameters
     def _set_params(self, new: Any) -> None:
