@@ -132,9 +132,9 @@ class PlanningParams:
         "attempts of a sub-task with one library variant before the next nearest reference ladder's"))
     timeout_s: float = param(120.0, unit="s", min=0.1, description="wall-time limit of one multi-step search")
     seed: int = param(0, unit="-", min=0, description="random seed of the hold sampling and IK perturbations")
-    collision_margin: float = param(0.005, unit="m", description=(
+    collision_margin: float = param(0.005, unit="m", min=0.0, max=0.1, description=(
         "collision margin of the planner's own checks (the frozen check uses config/feasibility.yaml)"))
-    self_collision_margin: float = param(0.001, unit="m", description=(
+    self_collision_margin: float = param(0.001, unit="m", min=-0.01, max=0.1, description=(
         "self-collision margin of the planner's own checks (links of one robot, e.g. pelvis vs hip at deep flexion)"))
     torque_limit_fraction: float = param(0.95, unit="-", min=0.1, max=1.0, description=(
         "share of the effort limits the planner's own checks allow"))
