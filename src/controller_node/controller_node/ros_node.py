@@ -84,6 +84,9 @@ _NS = 1_000_000_000
 READ_ONLY = ("autostart", "nice")
 #: bad state messages reported per topic and second (the rest are counted in the next report)
 INPUT_REPORTS_PER_S = 5
+#: what decoding / checking a bad message raises (rclpy's deserialize_message: RMWError, a
+#: RuntimeError; msgs_py.cdr: CdrError, a ValueError; the checks: SpecError)
+_BAD_INPUT = (ClimbError, ValueError, TypeError, IndexError, RuntimeError)
 _GRIPPER = {"open": GripperCommand.OPEN, "close": GripperCommand.CLOSE, "position": GripperCommand.POSITION}
 _QP_STATUS = (ControllerState.QP_OK, ControllerState.QP_FAILED, ControllerState.QP_NOT_RUN)
 LATENCY_WINDOW = 20000  # ticks kept for the diagnostics percentiles
@@ -273,7 +276,7 @@ class ControllerNode(LifecycleNode):
                                      qos_for("sim/base_truth"), raw=True),
             self.create_subscription(Imu, "imu", guarded(self, self._on_imu, "imu"), qos_for("imu"), raw=True),
             self.create_subscription(WholeBodyPlan, "whole_body_plan", guarded(self, self._on_plan, "whole_body_plan"),
-                                     qos_for("whole_body_plan")),
+                                     qos_for("whole_body_plan"), raw=True),  # garbage bytes: rejected, not fatal
         ] + [self.create_subscription(WrenchStamped, f"ft/{s}", guarded(self, self._make_ft_callback(s), f"ft/{s}"),
                                       qos_for(f"ft/{s}"), raw=True)
              for s in self.sensors]
@@ -373,7 +376,7 @@ class ControllerNode(LifecycleNode):
             if not (np.isfinite(joints.position).all() and np.isfinite(joints.velocity).all()):
                 raise SpecError("joint_states.position" if not np.isfinite(joints.position).all()
                                 else "joint_states.velocity", "must be finite")
-        except (ClimbError, ValueError, cdr.CdrError, TypeError, IndexError) as err:
+        except _BAD_INPUT as err:
             self._reject_input("joint_states", err)
             return
         self._joint_names_ok = joints.names
@@ -387,13 +390,22 @@ class ControllerNode(LifecycleNode):
                                 "must be finite")
             if not 0.5 < float(np.linalg.norm(base.pose[3:7])) < 2.0:
                 raise SpecError("sim/base_truth.pose.orientation", "must be a unit quaternion")
-        except (ClimbError, ValueError, cdr.CdrError, TypeError, IndexError) as err:
+        except _BAD_INPUT as err:
             self._reject_input("sim/base_truth", err)
             return
         self._store("base", base, base.stamp_ns)
 
     def _on_imu(self, data: bytes) -> None:
-        self._latest["imu"] = data  # kept raw for an IMU-based estimator (StateDecoder.imu); sim uses ground truth
+        # checked, then kept raw for an IMU-based estimator (StateDecoder.imu); sim uses ground truth
+        try:
+            imu = self._decode.imu(data)
+            for name in ("orientation_xyzw", "angular_velocity", "linear_acceleration"):
+                if not np.isfinite(getattr(imu, name)).all():
+                    raise SpecError(f"imu.{name}", "must be finite")
+        except _BAD_INPUT as err:
+            self._reject_input("imu", err)
+            return
+        self._latest["imu"] = data
 
     def _make_ft_callback(self, sensor: str):
         key = f"ft/{sensor}"
@@ -404,15 +416,22 @@ class ControllerNode(LifecycleNode):
                 stamp, wrench = decode(data)
                 if not np.isfinite(wrench).all():
                     raise SpecError(f"{key}.wrench", "must be finite")
-            except (ClimbError, ValueError, cdr.CdrError, TypeError, IndexError) as err:
+            except _BAD_INPUT as err:
                 self._reject_input(key, err)
                 return
             self._store(key, wrench, stamp)
         return callback
 
-    def _on_plan(self, msg: WholeBodyPlan) -> None:
+    def _on_plan(self, data: bytes) -> None:
         from msgs_py.contact import whole_body_plan_from_msg
 
+        try:
+            msg = deserialize_message(data, WholeBodyPlan)
+        except _BAD_INPUT as err:
+            self.get_logger().error(f"rejected whole_body_plan: undecodable ({len(data)} bytes): {err}")
+            diagnose(self, "controller/plan", f"rejected whole_body_plan: undecodable ({len(data)} bytes): {err}",
+                     level=2, values={"field": "whole_body_plan", "rule": "not a WholeBodyPlan"})
+            return
         request_id = str(getattr(msg, "request_id", ""))
         if self.controller is None:
             diagnose(self, "controller/plan", "rejected whole_body_plan: the controller is not configured",
