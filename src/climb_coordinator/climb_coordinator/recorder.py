@@ -42,6 +42,8 @@ class RecorderParams:
                                       min=0.05, max=10.0)
     flush_period_s: float = param(0.5, unit="s", description="wall time between two flushes: the most a SIGKILL loses; "
                                   "metadata.yaml is rewritten at each", min=0.05, max=1.0)
+    drain_s: float = param(3.0, unit="s", description="on SIGINT / SIGTERM, the longest wall time spent taking the "
+                           "messages DDS already delivered before the bag is closed", min=0.0, max=60.0)
 
 
 def normalize_topic(name: str) -> str:

@@ -9,7 +9,8 @@ publisher (TRANSIENT_LOCAL when they all are: a latched climb/request or robot_d
 published before the recorder joined is received), and stores the publishers' offered QoS in the
 bag. A topic is subscribed once it has a publisher (its QoS is then known). The bag is complete on
 disk after every flush (``flush_period_s`` <= 1 s, metadata.yaml rewritten atomically): a SIGKILL
-loses at most that much; SIGINT / SIGTERM close it and exit 0. The ROS-free part is
+loses at most that much; SIGINT / SIGTERM first take what DDS already delivered (``drain_s``), then
+close the bag and exit 0. The ROS-free part is
 climb_coordinator/recorder.py, the bag format msgs_py/bag.py.
 """
 from __future__ import annotations
@@ -123,10 +124,37 @@ def make_node(settings=None):
     return RecorderNode()
 
 
+def spin_then_drain(nodes, executor, is_running) -> None:
+    """run_node's loop: spin until a signal, then take what DDS already holds for the recorder
+    (a loaded machine may leave it behind its publishers) until nothing came for DRAIN_IDLE_S or
+    the node's drain_s has passed; the bag is closed afterwards (destroy_node)."""
+    while is_running():
+        executor.spin_once(timeout_sec=0.1)
+    node = nodes[0]
+    recording = getattr(node, "recording", None)
+    if recording is None or recording.closed:
+        return
+    deadline = time.monotonic() + float(node.settings.drain_s)
+    last_count, idle_since = -1, time.monotonic()
+    while time.monotonic() < deadline:
+        try:
+            executor.spin_once(timeout_sec=0.02)
+        except Exception:  # noqa: BLE001 - the context went away: nothing more to take
+            return
+        count = sum(recording.counts.values())
+        if count != last_count:
+            last_count, idle_since = count, time.monotonic()
+        elif time.monotonic() - idle_since > DRAIN_IDLE_S:
+            return
+
+
+DRAIN_IDLE_S = 0.3  # [s] no new message this long: the drain is over
+
+
 def main(args: list[str] | None = None) -> int:
     from msgs_py.node_kit import run_node
 
-    return run_node(make_node, args, name=NODE_NAME)
+    return run_node(make_node, args, name=NODE_NAME, loop=spin_then_drain)
 
 
 if __name__ == "__main__":

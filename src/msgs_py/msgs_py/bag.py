@@ -36,6 +36,7 @@ import pathlib
 import re
 import shutil
 import signal
+import struct
 import sys
 import threading
 import time
@@ -46,6 +47,7 @@ from typing import Any, Iterator, Sequence
 from climb_core.errors import SpecError
 
 MAGIC = b"\x89MCAP0\r\n"
+_MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 CHUNK_LIMIT_BYTES = 1 << 20  # a pending chunk larger than this is flushed at once
 
 
@@ -275,19 +277,19 @@ class _LiveMcap:
         write_channel(self._defs, self.channels[-1], self.schemas)
 
     def write(self, connection, timestamp: int, data) -> None:
-        from rosbags.rosbag2.storage_mcap import write_record, write_uint16, write_uint32, write_uint64
-
         chunk = self.chunk
-        chunk.message_start_time = min(timestamp, chunk.message_start_time)
-        chunk.message_end_time = max(timestamp, chunk.message_end_time)
-        chunk.msgs.setdefault(connection.id, []).append((timestamp, chunk.bio.tell()))
-        rec = BytesIO()
-        write_uint16(rec, connection.id)
-        write_uint32(rec, 0)
-        write_uint64(rec, timestamp)
-        write_uint64(rec, timestamp)
-        rec.write(data)
-        write_record(chunk.bio, 0x05, rec)
+        if timestamp < chunk.message_start_time:
+            chunk.message_start_time = timestamp
+        if timestamp > chunk.message_end_time:
+            chunk.message_end_time = timestamp
+        bio = chunk.bio
+        msgs = chunk.msgs.get(connection.id)
+        if msgs is None:
+            msgs = chunk.msgs[connection.id] = []
+        msgs.append((timestamp, bio.tell()))
+        # Message record: opcode 0x05, length, channel id, sequence, log time, publish time, data
+        bio.write(_MESSAGE_HEADER.pack(0x05, 22 + len(data), connection.id, 0, timestamp, timestamp))
+        bio.write(data)
         self.pending_messages += 1
 
     @property
@@ -454,8 +456,6 @@ def _make_writer_class():
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.rosbag2.metadata import dump_qos_v9
     from rosbags.interfaces import ConnectionExtRosbag2
-    from ruamel.yaml import YAML
-
     class LiveWriter(Writer):
         """rosbags' rosbag2 writer (MCAP, version 9) whose bag is complete after every checkpoint."""
 
@@ -489,11 +489,10 @@ def _make_writer_class():
             }
 
         def _dump(self, data) -> str:
-            yaml = YAML(typ="safe")
-            yaml.default_flow_style = False
-            stream = StringIO()
-            yaml.dump(data, stream)
-            return stream.getvalue()
+            import yaml  # PyYAML with libyaml: ~100x faster than ruamel for this document
+
+            dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+            return yaml.dump(data, Dumper=dumper, default_flow_style=False, sort_keys=True)
 
         def _write_metadata_yaml(self, info: dict) -> None:
             tmp = self.metapath.with_name(".metadata.yaml.tmp")
@@ -501,16 +500,26 @@ def _make_writer_class():
                 f.write(self._dump({"rosbag2_bagfile_information": info}))
             os.replace(tmp, self.metapath)
 
+        def _write(self, storage_call) -> None:
+            """Checkpoint or close the storage, then metadata.yaml (atomically) describing exactly
+            what the MCAP file now holds."""
+            info: dict = {}
+
+            def metadata() -> str:  # called by the storage once the pending chunk is counted
+                info.update(self._metadata())
+                return self._dump(info).strip()
+
+            storage_call(metadata)
+            self._write_metadata_yaml(info or self._metadata())
+
         def checkpoint(self) -> None:
-            """Pending messages to disk, then metadata.yaml (atomically) describing exactly them."""
+            """Pending messages to disk, then metadata.yaml describing exactly them."""
             assert self.storage is not None
-            self.storage.checkpoint(lambda: self._dump(self._metadata()).strip())
-            self._write_metadata_yaml(self._metadata())
+            self._write(self.storage.checkpoint)
 
         def close(self) -> None:
             assert self.storage is not None
-            self.storage.close(self.version, lambda: self._dump(self._metadata()).strip())
-            self._write_metadata_yaml(self._metadata())
+            self._write(lambda metadata: self.storage.close(self.version, metadata))
             self.storage = None
 
     return LiveWriter
