@@ -247,6 +247,7 @@ def test_a_request_passes_every_stage_in_order_and_plans_the_in_process_climb(gr
     guide, contact, summary = (texts[s] for s in STATUS)
     gp, cp, wb = products
     assert guide["n_milestones"] == len(gp.milestones) == 22  # start + approach 5 + mount 2 + 2 cycles of 7
+    assert guide["n_projected"] == 21  # every key configuration brought onto its seed holds
     assert contact["n_stances"] == len(cp.stances) == 22 and contact["n_feasible"] >= 1
     assert summary["success"] is True and summary["request_id"] == rid
     assert summary["n_stances"] == len(wb.transitions) + 1 and summary["plan_time_s"] > 0

@@ -36,7 +36,7 @@ class GuidePathParams:
         "primitive library config/primitives/<robot>/<library>/ (the adaptation's planning.strategy)"))
     primitives_dir: str = param("config/primitives", unit="-", description=(
         "primitive libraries (relative to the project root)"))
-    projection_iterations: int = param(12, unit="-", min=1, max=200, description=(
+    projection_iterations: int = param(30, unit="-", min=1, max=200, description=(
         "Gauss-Newton iterations projecting a milestone onto its seed holds"))
 
 

@@ -365,7 +365,7 @@ class StageResult:
     summary: dict = field(default_factory=dict)
 
 
-def guide_path(problem: Problem, projection_iterations: int = 12) -> StageResult:
+def guide_path(problem: Problem, projection_iterations: int = 30) -> StageResult:
     """The guide path of the primitive sequence: the start configuration, then each primitive's key
     configuration moved onto the actual ladder and projected onto its seed holds (a milestone the
     projection cannot bring onto the holds stays where the move put it; counted)."""
