@@ -319,6 +319,11 @@ def test_hold_is_refused_with_the_reason_when_the_controller_cannot_hold(lone_co
     assert _change_state(client, Transition.TRANSITION_ACTIVATE).success, node.tail()
     answer = client.call(Trigger, "controller/hold", timeout=30.0)  # active, but no bridge: no state
     assert answer is not None and not answer.success and "no robot state" in answer.message, answer
+    # dead peer: active without states, the silence is reported (once)
+    silent = lambda: [s for d in _diagnostics(client) for s in d.status  # noqa: E731
+                      if s.name == "controller/input" and "no complete state" in s.message]
+    assert client.spin_until(lambda: silent(), 30.0), node.tail()
+    assert silent()[0].level == b"\x01"
     assert _change_state(client, Transition.TRANSITION_DEACTIVATE).success, node.tail()
     assert node.alive(), node.tail()
 

@@ -84,6 +84,8 @@ _NS = 1_000_000_000
 READ_ONLY = ("autostart", "nice")
 #: bad state messages reported per topic and second (the rest are counted in the next report)
 INPUT_REPORTS_PER_S = 5
+#: [s] wall time without a complete state, while active, before the silence is reported
+STATE_SILENCE_S = 2.0
 #: what decoding / checking a bad message raises (rclpy's deserialize_message: RMWError, a
 #: RuntimeError; msgs_py.cdr: CdrError, a ValueError; the checks: SpecError)
 _BAD_INPUT = (ClimbError, ValueError, TypeError, IndexError, RuntimeError)
@@ -188,6 +190,8 @@ class ControllerNode(LifecycleNode):
         self._latest: dict[str, object] = {}
         self._stamps: dict[str, int] = {}
         self._received_at = 0.0  # [s] perf_counter when the newest complete state arrived
+        self._watchdog = None  # 1 Hz timer while active: reports a silent state source
+        self._silent = False  # the silence was reported (cleared by the next tick)
         self._last_stamp = -1
         self.latencies_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.tick_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
@@ -300,6 +304,8 @@ class ControllerNode(LifecycleNode):
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._reset_pending = True
         self.active = True
+        self._received_at = time.perf_counter()
+        self._watchdog = self.create_timer(1.0, guarded(self, self._check_silence, "watchdog"))
         result = super().on_activate(state)  # activates the lifecycle publishers
         if self.params.execution == "realtime":
             self._timer = self.create_timer(self.params.control_period_s, guarded(self, self._on_timer, "tick"))
@@ -307,18 +313,31 @@ class ControllerNode(LifecycleNode):
             self._try_lockstep_tick()
         return result
 
+    def _stop_timers(self) -> None:
+        for name in ("_timer", "_watchdog"):
+            timer = getattr(self, name)
+            if timer is not None:
+                self.destroy_timer(timer)
+                setattr(self, name, None)
+
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.active = False
-        if self._timer is not None:
-            self.destroy_timer(self._timer)
-            self._timer = None
+        self._stop_timers()
         return super().on_deactivate(state)
+
+    def _check_silence(self) -> None:
+        """Dead peer: no complete state for STATE_SILENCE_S while active. Nothing to command
+        (the bridge damps the joints when the commands stop); reported once per silence."""
+        age = time.perf_counter() - self._received_at
+        if self.active and not self._silent and age > STATE_SILENCE_S:
+            self._silent = True
+            text = f"no complete state for {age:.1f} s: no command sent (is the bridge running?)"
+            self.get_logger().warning(text)
+            diagnose(self, "controller/input", text, level=1, values={"silent_s": f"{age:.1f}"})
 
     def _destroy(self) -> None:
         self.active = False
-        if self._timer is not None:
-            self.destroy_timer(self._timer)
-            self._timer = None
+        self._stop_timers()
         for sub in self._subs:
             self.destroy_subscription(sub)
         for pub in self._pubs:
@@ -508,6 +527,9 @@ class ControllerNode(LifecycleNode):
 
     def _tick(self, stamp: int) -> None:
         self._last_stamp = stamp
+        if self._silent:
+            self._silent = False
+            diagnose(self, "controller/input", "states back: commanding again", level=0)
         state = self._robot_state(stamp)
         c = self.controller
         if self._reset_pending:
