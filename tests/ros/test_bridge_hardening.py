@@ -195,3 +195,49 @@ def test_sim_contacts_at_its_sim_time_rate(bridge):
     gaps = {round(stamp_s(b) - stamp_s(a), 6) for a, b in zip(received[-4:], received[-3:])}
     assert gaps == {0.1}, gaps
     assert client.set_parameters("/sim_bridge", {"contacts.rate_hz": 20.0})[0].successful
+
+
+def test_failed_reset_in_lockstep_keeps_the_tick_going():
+    """Row 7 in lock-step: a refused sim/reset neither rewinds the time nor leaves the bridge
+    waiting for a command it never asked for ("controller lost"). The test process is the
+    controller: it answers every state with a DAMPING command stamped like it."""
+    import array as _array
+
+    from climb_msgs.msg import JointCommand
+    from climb_msgs.srv import SimReset
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import JointState
+
+    proc = NodeProcess.module("sim_bridge.node", "-r", "__ns:=/lockstep_reset", name="sim_bridge_lockstep")
+    client = Client("bridge_lockstep_reset")
+    try:
+        diags: list = []
+        stamps: list[float] = []
+        pub = client.node.create_publisher(JointCommand, "/lockstep_reset/joint_command", client.qos("joint_command"))
+
+        def answer(msg) -> None:
+            stamps.append(stamp_s(msg))
+            cmd = JointCommand(names=list(msg.name), modes=_array.array("B", [JointCommand.DAMPING] * len(msg.name)),
+                               values=_array.array("d", [0.0] * len(msg.name)))
+            cmd.header.stamp = msg.header.stamp
+            pub.publish(cmd)
+
+        client.node.create_subscription(JointState, "/lockstep_reset/joint_states", answer, client.qos("joint_states"))
+        client.node.create_subscription(DiagnosticArray, "/lockstep_reset/diagnostics",
+                                        lambda m: diags.extend(m.status), client.qos("diagnostics"))
+        assert client.spin_until(lambda: len(stamps) > 40, START_TIMEOUT_S, [proc]), proc.tail()
+        lost = lambda: [d.message for d in diags if "controller lost" in d.message]  # noqa: E731
+        assert not lost()
+        response = client.call(SimReset, "/lockstep_reset/sim/reset", SimReset.Request(ladder="no_such_ladder"))
+        assert response is not None and not response.success and "no_such_ladder" in response.error
+        n = len(stamps)
+        assert client.spin_until(lambda: len(stamps) > n + 40, 60.0, [proc]), proc.tail()
+        after = stamps[n - 1:]
+        assert all(round(b - a, 6) == 0.005 for a, b in zip(after, after[1:])), after[:10]
+        assert not lost(), lost()
+    finally:
+        client.close()
+        code = proc.stop()
+        out = proc.output()
+        proc.close()
+    assert code == 0 and "Traceback" not in out, out[-3000:]
