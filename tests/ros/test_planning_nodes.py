@@ -84,6 +84,17 @@ def test_a_request_never_makes_a_node_read_a_file_and_more_rungs_than_the_ladder
     assert {h.limb: h.env_surface for h in steps[-1].stance.holds}["left_foot"] == "rung_8"
 
 
+def test_a_ladder_the_library_cannot_hold_fails_the_guide_path_with_the_constraint():
+    from climb_core.errors import InfeasibleError
+    from planner_node.node_params import stage_settings
+    from planner_node.pipeline import guide_path, load_problem, parse_plan_request
+
+    problem = load_problem(parse_plan_request(json.dumps(dict(REQUEST, scenario="a_frame"))), stage_settings())
+    with pytest.raises(InfeasibleError) as err:  # its treads are boxes: the G1 library grasps cylinders
+        guide_path(problem)
+    assert err.value.constraint == "hold:hold.env_surface" and "mount_left_hand" in err.value.detail
+
+
 def test_the_seed_sequence_of_a_climb_and_back_down_retraces_the_cycles():
     from planner_node.node_params import stage_settings
     from planner_node.pipeline import load_problem, parse_plan_request, seed_sequence

@@ -314,7 +314,10 @@ def seed_sequence(problem: Problem) -> tuple[np.ndarray, Stance, list[SeedStep]]
         stance = state.stance
         moving = ""
         if prim.is_limb:
-            hold = sample_target_hold(ctx, prim, state, 0, rng)
+            try:
+                hold = sample_target_hold(ctx, prim, state, 0, rng)
+            except SpecError as exc:  # as Adapt-Primitive says it: this library cannot hold that surface
+                raise InfeasibleError(f"hold:{exc.field}", f"{prim.name}: {exc}") from None
             if hold is None:
                 raise InfeasibleError("no_target", f"{prim.name}: no rung for the seed hold of {prim.limb} (the "
                                                    f"ladder has {problem.env.n_rungs} rungs)")
