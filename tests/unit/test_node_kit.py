@@ -285,15 +285,15 @@ CHILD = textwrap.dedent("""
             worker.submit(lambda: time.sleep(120.0), "long")
         return Talker()
 
-    sys.exit(node_kit.run_node(factory, name="kit_child"))
+    sys.exit(node_kit.run_node(factory, sys.argv, name="kit_child"))
 """)
 
 
-def run_child(mode, sig=None, delay=0.0, timeout=TIMEOUT_S):
+def run_child(mode, sig=None, delay=0.0, timeout=TIMEOUT_S, ros_args=()):
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
-    child = subprocess.Popen([sys.executable, "-c", CHILD, mode], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                             text=True, env=env)
+    child = subprocess.Popen([sys.executable, "-c", CHILD, mode, *ros_args], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, env=env)
     try:
         if sig is not None:
             line = child.stdout.readline()
@@ -313,6 +313,8 @@ def test_run_node_exit_codes():
     assert code == 2 and "kit_child: kit_child.robot: unknown robot 'banana'" in err and "Traceback" not in err
     code, err = run_child("bug")
     assert code == 1 and "RuntimeError: a bug" in err
+    code, err = run_child("talk", ros_args=("--ros-args", "-p", "no_value_here"))
+    assert code == 2 and "kit_child: cannot start ROS" in err and "Traceback" not in err
 
 
 @pytest.mark.parametrize("sig,delay,mode", [(signal.SIGINT, 0.05, "talk"), (signal.SIGTERM, 0.3, "talk"),

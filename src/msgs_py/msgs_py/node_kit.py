@@ -149,12 +149,13 @@ def run_node(factory: Callable[[], Any], args: list[str] | None = None, *, execu
     """Run the node(s) ``factory()`` returns (one node or a sequence) until a signal or shutdown.
 
     ``executor``: an executor, or a callable making one after ``rclpy.init`` (default:
-    climb_core.ros_env.make_executor, driven with spin_once). ``loop(nodes, executor, running)``
+    :func:`make_executor`, driven with spin_once). ``loop(nodes, executor, running)``
     replaces the default loop (``while running(): executor.spin_once(0.1)``); it must return soon
     after ``running()`` turns False. ``after_add(nodes, executor)`` runs once the nodes are in the
     executor (e.g. apply_cpu_affinity). Returns the exit code: 0 after a signal or a normal end, 2
-    when the factory (or the loop) raises ClimbError or rclpy refuses a parameter (message on
-    stderr), 1 on any other exception (its traceback on stderr: a bug).
+    when rclpy cannot start (malformed --ros-args), the factory (or the loop) raises ClimbError or
+    rclpy refuses a parameter (one line on stderr), 1 on any other exception (its traceback on
+    stderr: a bug).
     """
     from rclpy.exceptions import ParameterException
     from rclpy.executors import ExternalShutdownException
@@ -167,6 +168,10 @@ def run_node(factory: Callable[[], Any], args: list[str] | None = None, *, execu
     ex = None
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as err:  # noqa: BLE001 - malformed --ros-args and the like: the user's error
+        print(f"{name}: cannot start ROS: {type(err).__name__}: {err}", file=sys.stderr)
+        return 0 if _STOP.is_set() else 2
+    try:
         if _STOP.is_set():
             return 0
         built = factory()
