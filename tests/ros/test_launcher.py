@@ -59,8 +59,9 @@ def _launched(module, layout: str) -> dict[str, dict]:
         for p in kw["parameters"]:
             if isinstance(p, dict):
                 params.update(p)
+        prefix = kw.get("prefix", "")
         out[kw["name"]] = {"package": kw["package"], "executable": kw["executable"], "files": files,
-                           "params": params}
+                           "params": params, "nice": int(prefix.split()[-1]) if prefix else 0}
     return out
 
 
@@ -77,7 +78,7 @@ def _started(layout: str) -> dict[str, dict]:
         files = [argv[i + 1] for i, a in enumerate(argv) if a == "--params-file"]
         params = dict(argv[i + 1].split(":=", 1) for i, a in enumerate(argv) if a == "-p")
         out[spec.name] = {"package": exe.parent.name, "executable": exe.name, "files": files, "params": params,
-                          "to_text": _param_text}
+                          "to_text": _param_text, "nice": spec.nice}
     return out
 
 
@@ -95,6 +96,7 @@ def test_launch_file_declares_what_the_launcher_starts(stand_in_launch, layout):
         la = launched[name]
         assert (la["package"], la["executable"]) == (s["package"], s["executable"]), name
         assert la["files"] == s["files"], name
+        assert la["nice"] == s["nice"], name
         assert {k: s["to_text"](v) for k, v in la["params"].items()} == s["params"], name
     # the controller waits for the coordinator, the bridge for the controller
     ctl = launched["controller" if layout == "processes" else "sim_graph"]["params"]

@@ -15,6 +15,7 @@ Children inherit the loopback DDS environment (climb_core.ros_env.local_dds_env)
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
 import pathlib
 import signal
@@ -42,6 +43,7 @@ class NodeSpec:
     optional: bool = False  # started only when its executable exists
     planner: bool = False  # gets config/climb.yaml's planner_overrides
     replaces: tuple[str, ...] = ()  # a composed process: the nodes it runs
+    nice: int = 0  # process niceness (negative: the lock-step pair keeps its pace on a loaded machine)
 
     def executable_path(self, prefix: str | os.PathLike | None = None) -> pathlib.Path:
         """Where `ros2 run <package> <executable>` finds it: <prefix>/lib/<package>/<executable>."""
@@ -91,16 +93,20 @@ def _spec(d: Any, where: str) -> NodeSpec:
     for key in ("name", "package", "executable"):
         if not isinstance(d.get(key), str) or not d[key]:
             raise SpecError(f"{where}.{key}", "is required (a non-empty string)")
-    unknown = set(d) - {"name", "package", "executable", "params_files", "params", "optional", "planner", "replaces"}
+    unknown = set(d) - {"name", "package", "executable", "params_files", "params", "optional", "planner", "replaces",
+                        "nice"}
     if unknown:
         raise SpecError(f"{where}.{sorted(unknown)[0]}", "unknown key")
     files = d.get("params_files") or []
     params = d.get("params") or {}
     if not isinstance(files, list) or not isinstance(params, dict):
         raise SpecError(where, "params_files must be a list, params a mapping")
+    nice = d.get("nice", 0)
+    if isinstance(nice, bool) or not isinstance(nice, int) or not -20 <= nice <= 19:
+        raise SpecError(f"{where}.nice", f"must be an integer in [-20, 19], got {nice!r}")
     return NodeSpec(d["name"], d["package"], d["executable"], tuple(str(f) for f in files), dict(params),
                     bool(d.get("optional", False)), bool(d.get("planner", False)),
-                    tuple(d.get("replaces") or ()))
+                    tuple(d.get("replaces") or ()), nice)
 
 
 def load_graph(path: str | os.PathLike | None = None) -> GraphConfig:
@@ -169,9 +175,15 @@ def command(spec: NodeSpec, extra_params: dict | None = None, prefix: str | None
 _PR_SET_PDEATHSIG = 1
 
 
-def _child_setup() -> None:
-    """In the child, before exec: its own process group, and SIGKILL when the launcher dies."""
+def _child_setup(nice: int = 0) -> None:
+    """In the child, before exec: its own process group, its niceness (ignored when not
+    permitted), and SIGKILL when the launcher dies."""
     os.setpgid(0, 0)
+    if nice:
+        try:
+            os.nice(nice)
+        except OSError:
+            pass
     try:
         libc = ctypes.CDLL("libc.so.6", use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
@@ -203,6 +215,7 @@ class GraphProcesses:
     def start(self) -> None:
         if self.log_dir is not None:
             self.log_dir.mkdir(parents=True, exist_ok=True)
+        specs = {n.name: n for n in self.specs}
         for name, argv in self.commands().items():
             if not pathlib.Path(argv[0]).exists():
                 self.stop()
@@ -213,7 +226,7 @@ class GraphProcesses:
                 self._logs.append(out)
             self.procs[name] = subprocess.Popen(argv, env=self.env, cwd=str(project_root()), stdout=out,
                                                 stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                                preexec_fn=_child_setup)
+                                                preexec_fn=functools.partial(_child_setup, specs[name].nice))
 
     def pids(self) -> dict[str, int]:
         return {name: p.pid for name, p in self.procs.items()}
@@ -295,7 +308,7 @@ def launch_entries(layout: str = "processes", extra_params: dict[str, dict] | No
     root = root or project_root()
     out = []
     for n in load_graph(root / "config" / "graph.yaml").layout(layout):
-        out.append({"package": n.package, "executable": n.executable, "name": n.name,
+        out.append({"package": n.package, "executable": n.executable, "name": n.name, "nice": n.nice,
                     "params_files": [str(p) for p in n.params_paths(root) if p.is_file()],
                     "params": node_params(n, (extra_params or {}).get(n.name))})
     return out

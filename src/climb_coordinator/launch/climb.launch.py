@@ -14,6 +14,7 @@ from climb_coordinator.graph import launch_entries
 def generate_launch_description(layout: str = "processes"):
     nodes = []
     for e in launch_entries(layout):
+        extra = {"prefix": f"nice -n {e['nice']}"} if e["nice"] else {}
         nodes.append(Node(package=e["package"], executable=e["executable"], name=e["name"], output="screen",
-                          parameters=list(e["params_files"]) + ([e["params"]] if e["params"] else [])))
+                          parameters=list(e["params_files"]) + ([e["params"]] if e["params"] else []), **extra))
     return LaunchDescription(nodes)
