@@ -70,6 +70,9 @@ def test_every_parameter_has_a_description_with_unit_and_its_range(bridge):
     assert descriptors["robot"].read_only and descriptors["physics.dt_s"].read_only  # sim/reset / restart
     assert not descriptors["realtime.watchdog_s"].read_only
     assert descriptors["physics.dt_s"].type == ParameterType.PARAMETER_DOUBLE
+    # every parameter has a value (an uninitialized cpu_affinity made get_parameters answer none)
+    values = client.get_parameters("/sim_bridge", sorted(descriptors))
+    assert set(values) == set(descriptors) and values["cpu_affinity"] == []
 
 
 # ------------------------------------------------------------------------------------- row 3

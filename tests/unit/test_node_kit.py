@@ -29,6 +29,7 @@ class Inner:
 class Schema:
     rate_hz: float = param(200.0, unit="Hz", description="loop rate", min=1.0)
     count: int = param(3, unit="-", description="a count", min=0, max=5)
+    delay: int = param(0, unit="-", description="a choice of integers", choices=(0, 1))
     mode: str = param("qp", unit="-", description="the mode", choices=("qp", "compliance"))
     flag: bool = param(False, unit="-", description="a flag")
     inner: Inner = group(Inner, "a group")
@@ -102,6 +103,11 @@ def test_descriptors_carry_unit_range_choices(context):
         assert flag.read_only and not rate.read_only
         assert "[N m/rad]" in gain.description and gain.floating_point_range[0].to_value == 10.0
         assert names.type == ParameterType.PARAMETER_STRING_ARRAY
+        # an empty array is initialized (rclpy's get_parameters service answers nothing at all for
+        # a request naming an uninitialized parameter)
+        assert [list(p.value) for p in node.get_parameters(["inner.names"])] == [[]]
+        delay = node.describe_parameters(["delay"])[0]  # numeric choices give the range too
+        assert (delay.integer_range[0].from_value, delay.integer_range[0].to_value) == (0, 1)
     finally:
         node.destroy_node()
 
@@ -172,6 +178,8 @@ def test_prefix_and_two_schemas_on_one_node(context):
         assert not set_param(node, "left.gain", -1.0).successful
         assert set_param(node, "left.gain", 3.0).successful
         assert "read-only" in set_param(node, "rate_hz", 10.0).reason.lower()
+        assert node.describe_parameters(["inner.names"])[0].read_only  # an empty array read-only too
+        assert "read-only" in set_param(node, "inner.names", ["x"]).reason.lower()
     finally:
         node.destroy_node()
 

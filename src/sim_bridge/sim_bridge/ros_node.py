@@ -127,7 +127,7 @@ class SimBridgeNode(Node):
                                               read_only=[n for n in describe(BridgeParams) if n not in live],
                                               on_change=self._on_params)
         # a node-level setting: empty = the inherited CPU set (an empty list cannot be typed in YAML)
-        self.declare_parameter("cpu_affinity", Parameter.Type.INTEGER_ARRAY, ParameterDescriptor(
+        node_kit.declare_array(self, "cpu_affinity", Parameter.Type.INTEGER_ARRAY, ParameterDescriptor(
             description="CPUs every thread of this process runs on, set at start-up (empty: the inherited "
                         "set) [-]", read_only=True))
         return params
