@@ -155,6 +155,11 @@ class Client:
             f"{t} {getattr(m, 'id', getattr(m, 'request_id', ''))} {getattr(m, 'phase', '')} "
             f"{getattr(m, 'text', '')[:200]}" for t, m in self.log[-12:]))
 
+    def spin_for(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.05)
+
     def request(self, data) -> None:
         self.pub_request.publish(self.String(data=data if isinstance(data, str) else json.dumps(data)))
 
@@ -250,7 +255,8 @@ def test_a_request_passes_every_stage_in_order_and_plans_the_in_process_climb(gr
     for m in products:
         assert m.request_id == rid and json.loads(m.request_json) == REQUEST
     client.spin_until(lambda: len(client.status(rid, "done")) == 3, 10.0, "three done statuses")
-    # each stage: its phase, then done, all with the request's id
+    client.spin_for(1.5)  # > 2 progress periods: no progress status may follow a done
+    # each stage: its phase, then done (last), all with the request's id
     for topic, phase in zip(STATUS, ("guide_path", "contact_search", "adaptation")):
         phases = [m.phase for t, m in client.status(rid) if t == topic]
         assert phases[0] == phase and phases[-1] == "done", (topic, phases)

@@ -170,10 +170,10 @@ def make_node():
                 out = whole_body_plan_to_msg(res.plan, stamp=self.now_s())
                 out.request_id = rid
                 out.request_json = request_json
-                if safe_publish(self.pub_plan, out):
-                    self.done(rid, summary, n)
+                self.done(rid, summary, n)  # first: the summary is there when the plan arrives
+                safe_publish(self.pub_plan, out)
             else:
-                self.status(rid, "failed", f"{res.failure_constraint}: {res.failure_detail}",
+                self.finish(rid, "failed", f"{res.failure_constraint}: {res.failure_detail}",
                             res.report.deepest if res.report else 0, n)
 
         # ---- legacy inputs: a contact plan without a request, primitive_adaptation/request

@@ -70,8 +70,8 @@ def make_node():
             out = contact_plan_to_msg(res.product, stamp=self.now_s())
             out.request_id = req.id
             out.request_json = req.text
-            if safe_publish(self.pub_plan, out):
-                self.done(req.id, dict(res.summary, request_id=req.id), len(res.product.stances))
+            self.done(req.id, dict(res.summary, request_id=req.id), len(res.product.stances))
+            safe_publish(self.pub_plan, out)
 
     return ContactSearchNode()
 

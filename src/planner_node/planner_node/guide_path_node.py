@@ -62,8 +62,8 @@ def make_node():
             out = guide_path_to_msg(res.product, stamp=self.now_s())
             out.request_id = req.id
             out.request_json = req.text
-            if safe_publish(self.pub_path, out):
-                self.done(req.id, dict(res.summary, request_id=req.id), len(res.product.milestones))
+            self.done(req.id, dict(res.summary, request_id=req.id), len(res.product.milestones))
+            safe_publish(self.pub_path, out)
 
     return GuidePathNode()
 

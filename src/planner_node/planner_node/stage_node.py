@@ -6,7 +6,9 @@ worker thread. Every status carries the id of the request it concerns, a refused
 
 - the request's phase (``guide_path``, ``contact_search``, ``adaptation``) when its work starts and
   every ``STATUS_PERIOD_S`` while it runs (step k of n where the stage counts them);
-- ``done`` with the stage's JSON summary as text, after the product was published;
+- ``done`` with the stage's JSON summary as text, published just BEFORE the product (a client
+  waiting for the product finds the summary there; DDS does not order two topics, but one writer's
+  samples leave in order); no progress status follows a request's done / failed;
 - ``failed`` with the reason: a malformed input (field and rule), a strategy not implemented, a
   violated constraint, "busy" (another request is being planned: this one is refused, not
   queued), or an internal error (the node keeps serving).
@@ -44,7 +46,10 @@ class StageNode(Node):
         self.pub_status = self.create_publisher(ClimbStatus, self.status_topic, qos_for(self.status_topic))
         self.worker = Worker(self, f"{node_name}_worker", on_error=self._job_crashed)
         self._progress = (0, 0)
-        self._progress_lock = threading.Lock()
+        #: the request being worked on; cleared, under the lock, as its last status goes out, so no
+        #: progress status of the timer can follow its done / failed
+        self._active: str | None = None
+        self._status_lock = threading.Lock()
         self.create_timer(STATUS_PERIOD_S, guarded(self, self._tick, "status_timer"))
 
     def warm_up(self, settings: Any, robot: str = "g1") -> None:
@@ -95,19 +100,31 @@ class StageNode(Node):
         return safe_publish(self.pub_status, msg)
 
     def fail(self, request_id: str, text: str) -> None:
+        """A failed status for a request that is not (or not yet) worked on: malformed, refused."""
         self.get_logger().warning(f"request {request_id!r} failed: {text[:500]}")
         self.status(request_id, "failed", text)
 
+    def finish(self, request_id: str, phase: str, text: str, step: int = 0, n: int = 0) -> None:
+        """The last status (done / failed) of the request being worked on."""
+        if phase == "failed":
+            self.get_logger().warning(f"request {request_id!r} failed: {text[:500]}")
+        with self._status_lock:
+            if self._active == request_id:
+                self._active = None
+            self.status(request_id, phase, text, step, n)
+
+    def done(self, request_id: str, summary: dict, n: int = 0) -> None:
+        self.finish(request_id, "done", json.dumps(summary), n, n)
+
     def set_progress(self, k: int, n: int) -> None:
-        with self._progress_lock:
+        with self._status_lock:
             self._progress = (int(k), int(n))
 
     def _tick(self) -> None:
-        rid = self.worker.current_id
-        if rid is not None:
-            with self._progress_lock:
+        with self._status_lock:
+            if self._active is not None:
                 k, n = self._progress
-            self.status(rid, self.phase, "planning", k, n)
+                self.status(self._active, self.phase, "planning", k, n)
 
     # -------------------------------------------------------------- requests
     def start(self, request_id: str, job: Callable[[], None]) -> bool:
@@ -121,22 +138,23 @@ class StageNode(Node):
         return True
 
     def _run(self, request_id: str, job: Callable[[], None]) -> None:
-        self.set_progress(0, 0)
-        self.status(request_id, self.phase, "started")
+        with self._status_lock:
+            self._active = request_id
+            self._progress = (0, 0)
+            self.status(request_id, self.phase, "started")
         try:
             job()
         except SpecError as exc:
-            self.fail(request_id, f"malformed input: {exc}")
-        except InfeasibleError as exc:
-            self.fail(request_id, str(exc))
-        except ClimbError as exc:
-            self.fail(request_id, str(exc))
+            self.finish(request_id, "failed", f"malformed input: {exc}")
+        except ClimbError as exc:  # InfeasibleError: the constraint
+            self.finish(request_id, "failed", str(exc))
+        finally:
+            with self._status_lock:
+                if self._active == request_id:  # ended without a last status (shutting down, a bug)
+                    self._active = None
 
     def _job_crashed(self, request_id: str, exc: BaseException) -> None:
-        self.fail(request_id, f"internal error: {type(exc).__name__}: {exc}")
-
-    def done(self, request_id: str, summary: dict, n: int = 0) -> None:
-        self.status(request_id, "done", json.dumps(summary), n, n)
+        self.finish(request_id, "failed", f"internal error: {type(exc).__name__}: {exc}")
 
 
 def check_request_strategy(node: StageNode, request_id: str, request_strategy: str | None, stage: str) -> bool:
