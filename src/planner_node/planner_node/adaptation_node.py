@@ -100,17 +100,19 @@ class AdaptationService:
                           timeout_s=request["timeout_s"], on_progress=on_progress)
 
     def plan_contact(self, contact_plan, ladder: Any = None, on_progress=None):
-        from climb_core.robot import load_robot
+        from climb_core.ladder import available_ladders
+        from climb_core.robot import available_robots, load_robot
 
         from .climb_planner import plan_from_contact_plan
 
-        robot = load_robot(contact_plan.robot or self.settings.planning.robot)
+        # names only: a message never makes the node read a file
+        name = contact_plan.robot or self.settings.planning.robot
+        if name not in available_robots():
+            raise SpecError("contact_plan.robot", f"unknown robot {name!r} (available: {', '.join(available_robots())})")
+        robot = load_robot(name)
         env = None
-        if contact_plan.environment:
-            try:
-                env = self.environment(contact_plan.environment)
-            except SpecError:
-                env = None
+        if contact_plan.environment in available_ladders():
+            env = self.environment(contact_plan.environment)
         env = env or self.environment(ladder or self.default_ladder)
         return plan_from_contact_plan(robot, env, contact_plan, settings=self.settings, on_progress=on_progress)
 
