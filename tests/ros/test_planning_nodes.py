@@ -299,6 +299,15 @@ def test_a_replan_from_a_measured_state_plans_what_the_in_process_replanner_plan
         t == "primitive_adaptation/status" for t, _ in client.status(rid, "done")), 10.0, "done")
     summary = json.loads([m for t, m in client.status(rid, "done") if t == "primitive_adaptation/status"][0].text)
     assert summary["success"] and 0 < summary["start_projection_mm"] < 50
+    contact = json.loads([m for t, m in client.status(rid, "done") if t == "contact_search/status"][0].text)
+    assert all(i["index"] != 0 for i in contact["infeasible"])  # the start, projected, is feasible
+    # a measured state 20 cm off its stance: the first stage says so
+    far = q.copy()
+    far[:3] += [0.0, 0.0, 0.2]
+    client.request(dict(request, id="climb-1-replan-far", start={"q": far.tolist(), "stance": request["start"]["stance"]}))
+    client.spin_until(lambda: client.status("climb-1-replan-far", "failed"), 60.0, "the refusal of a far start")
+    (topic, msg), = client.status("climb-1-replan-far", "failed")
+    assert topic == "guide_path/status" and msg.text.startswith("start:"), msg.text
     expected = in_process_plan(1, REQUEST["seed"], REQUEST["timeout_s"], start=(q, t.target_stance))
     assert expected.success
     assert_same_plan(client.of("whole_body_plan", rid)[-1], expected.plan)

@@ -269,9 +269,18 @@ def warm_up(settings: PlannerSettings, robot: str = "g1", scenario: str = "defau
 
 
 def start_state(problem: Problem) -> tuple[np.ndarray, Stance]:
-    """(q, stance) the climb starts from: the request's start, else the library's start fixture."""
+    """(q, stance) the climb starts from: the request's measured start projected onto its stance
+    (:func:`planner_node.replan.measured_start`, as the adaptation and the in-process replanner do;
+    InfeasibleError ``start:<constraint>`` when it does not project), else the library's start
+    fixture."""
     if problem.start is not None:
-        return problem.start[0].copy(), problem.start[1]
+        from .replan import measured_start
+
+        q_meas, stance = problem.start
+        try:
+            return measured_start(problem.robot, problem.env, q_meas, stance, problem.settings), stance
+        except InfeasibleError as exc:
+            raise InfeasibleError(f"start:{exc.constraint}", exc.detail) from None
     from climb_core import fixtures
 
     stance, q = fixtures.get(problem.library.initial_fixture, problem.robot, problem.env)
@@ -484,19 +493,13 @@ def adapt(problem: Problem, contact_plan: ContactPlan | None = None, on_progress
     onto its stance."""
     from .climb_planner import plan_climb
     from .descend import up_and_down
-    from .replan import measured_start
 
     req = problem.request
     start = None
     projection_mm = None
     if problem.start is not None:
-        q_meas, stance = problem.start
-        try:
-            q0 = measured_start(problem.robot, problem.env, q_meas, stance, problem.settings)
-        except InfeasibleError as exc:
-            raise InfeasibleError(f"start:{exc.constraint}", exc.detail) from None
-        start = (q0, stance)
-        projection_mm = round(float(np.linalg.norm(q0[:3] - q_meas[:3])) * 1e3, 2)
+        start = start_state(problem)
+        projection_mm = round(float(np.linalg.norm(start[0][:3] - problem.start[0][:3])) * 1e3, 2)
     planner = up_and_down if req.descend else plan_climb
     res = planner(problem.robot, problem.env, req.rungs, library=problem.library, settings=problem.settings,
                   start=start, seed=req.seed, timeout_s=req.timeout_s, on_progress=on_progress)
