@@ -132,7 +132,7 @@ def replay(args) -> int:
             print(f"error: not in the bag: {', '.join(missing)} (it has {', '.join(sorted(info))})", file=sys.stderr)
             return 2
     topics = [t for t in info if wanted is None or _abs(t) in wanted]
-    messages = [m for m in read_bag(bag, topics=topics)]
+    messages = read_bag(bag, topics=topics)  # streamed: a long bag is never held in memory
     import rclpy
 
     from climb_core.ros_env import apply_local_dds_env
@@ -151,9 +151,11 @@ def replay(args) -> int:
         check_safe(node, topics, args.namespace)  # a node discovered late is refused too
         counts = {t: 0 for t in topics}
         lag_max = 0.0
-        first = messages[0].stamp_ns if messages else 0
-        t0 = time.perf_counter() + 0.05
+        first = None
+        t0 = time.perf_counter()
         for m in messages:
+            if first is None:  # the schedule starts with the first message read
+                first, t0 = m.stamp_ns, time.perf_counter() + 0.01
             due = t0 + (m.stamp_ns - first) / NS / args.rate
             while True:
                 left = due - time.perf_counter()
@@ -243,8 +245,11 @@ def reexecution_setup(request: dict, set_params: list[str]) -> tuple[dict, dict,
                        "autostart": True, "execution": "lockstep"})
     if delay and "actuation_latency_s" not in controller:
         controller["actuation_latency_s"] = delay * load_controller_params().control_period_s
+    # lockstep.command_timeout_s: the relay never drops a command, so a timeout could only come
+    # from a loaded machine (and would damp a tick the recorded run did not damp)
     bridge = {"robot": robot, "ladder": scenario, "initial_posture": posture, "execution": "lockstep",
-              "seed": int(request.get("seed") or 0), "lockstep.command_delay_ticks": delay}
+              "seed": int(request.get("seed") or 0), "lockstep.command_delay_ticks": delay,
+              "lockstep.command_timeout_s": 30.0, "lockstep.startup_wait_s": 60.0}
     for item in set_params:
         try:
             target, assignment = item.split(":", 1)
@@ -319,12 +324,14 @@ def reexecute(args) -> int:
     base_t: list[float] = []
     base_p: list[tuple] = []
     fsm: list[tuple[int, str]] = []
-    held: list = []  # commands waiting for the plan to reach the controller: (release time, bytes)
     gated: list[int] = []
     grippers: list[tuple[int, bytes]] = []  # the new controller's gripper requests not yet relayed
     commands: dict[int, bytes] = {}  # the new controller's joint_command per stamp
     states: dict[int, bytes] = {}  # the new bridge's joint_states per stamp
-    state = {"next_plan": 0, "relayed": 0, "done": False}
+    state = {"next_plan": 0, "relayed": 0, "done": False, "last_state": -1}
+    pending: list[tuple[int, bytes]] = []  # the controller's commands not yet relayed
+    gate = {"until": 0.0}  # [s, monotonic] no command relayed before this
+    delay = int(bridge_p.get("lockstep.command_delay_ticks", 0) or 0)
 
     def _stamp_of(data: bytes) -> int:
         import struct
@@ -338,29 +345,43 @@ def reexecute(args) -> int:
     def on_command(data: bytes) -> None:
         stamp = _stamp_of(data)
         commands[stamp] = bytes(data)
+        pending.append((stamp, bytes(data)))
+        relay()
+
+    def relay() -> None:
+        """Pass the controller's commands on to the bridge, in order, with two stops.
+        - Plans: the command of the tick before the one at which the recorded controller took plan
+          i (two ticks before with a one-period command delay: the bridge then publishes a state
+          before it needs the previous command) waits until plan i has reached the controller.
+        - Grippers: a request stamped t acts from the bridge's next step after it arrives. The
+          recorded controller's one, published after its joint command, reached the bridge once
+          the step of t had begun (delay 1: once the step of t + T had begun... after the command
+          of t, which that step uses), so it acted from t + T. Relayed here while the bridge waits
+          for the command of that step (t + T, delay 1: t), which follows a moment later, it acts
+          from t + T too, on every run. With a delay the command of t waits for the controller's
+          state of t, published after its grippers."""
         now = time.monotonic()
-        release = 0.0
-        # a gripper request stamped t acts on the bridge's next step after it arrives: the recorded
-        # controller's one (published after its joint command) reached the bridge once the step of
-        # t had begun, so it acted from t + T. Relayed here while the bridge waits for the command
-        # of t + T, and that command a moment later, it acts from t + T too, on every run.
-        due = [g for g in grippers if g[0] < stamp]
-        if due:
-            for g in due:
-                pubs["gripper"].publish(g[1])
-                grippers.remove(g)
-            release = now + args.gripper_delay_s
-        i = state["next_plan"]
-        if i < len(plans) and stamp + period_ns >= starts[i]:
-            plan_pub.publish(plans[i])
-            state["next_plan"] = i + 1
-            gated.append(stamp + period_ns)  # the tick at which the new controller takes plan i
-            release = max(release, now + args.plan_delivery_s)
-        if held or release:
-            held.append((max(release, held[-1][0] if held else 0.0), data))
-            return
-        pubs["cmd"].publish(data)
-        state["relayed"] += 1
+        while pending and now >= gate["until"]:
+            stamp, data = pending[0]
+            if delay and state["last_state"] < stamp:
+                return  # delay 1: the grippers of this tick may still come
+            due = [g for g in grippers if g[0] + (1 - delay) * period_ns <= stamp]
+            if due:
+                for g in due:
+                    pubs["gripper"].publish(g[1])
+                    grippers.remove(g)
+                gate["until"] = now + args.gripper_delay_s
+                return
+            i = state["next_plan"]
+            if i < len(plans) and stamp + (1 + delay) * period_ns >= starts[i]:
+                plan_pub.publish(plans[i])
+                state["next_plan"] = i + 1
+                gated.append(stamp + (1 + delay) * period_ns)  # the tick at which the controller takes it
+                gate["until"] = now + args.plan_delivery_s
+                return
+            pubs["cmd"].publish(data)
+            pending.pop(0)
+            state["relayed"] += 1
 
     def on_base(msg: Odometry) -> None:
         p = msg.pose.pose.position
@@ -371,7 +392,11 @@ def reexecute(args) -> int:
             state["done"] = True
 
     def on_state(msg: ControllerState) -> None:
-        fsm.append((msg.header.stamp.sec * NS + msg.header.stamp.nanosec, msg.fsm_state))
+        stamp = msg.header.stamp.sec * NS + msg.header.stamp.nanosec
+        fsm.append((stamp, msg.fsm_state))
+        state["last_state"] = max(state["last_state"], stamp)
+        if delay:
+            relay()
 
     node.create_subscription(JointCommand, "joint_command_gate", on_command, deep, raw=True)
     node.create_subscription(GripperCommand, "gripper_command_gate", on_gripper, deep, raw=True)
@@ -405,11 +430,8 @@ def reexecute(args) -> int:
         deadline = time.monotonic() + args.timeout
         while not state["done"]:
             rclpy.spin_once(node, timeout_sec=0.005)
-            if held and time.monotonic() >= held[0][0]:
-                for _, data in held:
-                    pubs["cmd"].publish(data)
-                    state["relayed"] += 1
-                held.clear()
+            if pending:
+                relay()
             dead = [n for n, p in procs.items() if p.poll() is not None]
             if dead and not state["done"]:
                 # the bridge ends by itself at max_ticks: drain what it published last

@@ -154,11 +154,14 @@ def _recorder_cmd(bag: pathlib.Path) -> list[str]:
 
 
 def _record_run(bag: pathlib.Path, env: dict) -> None:
+    """The recorded run: bridge and controller in lock-step, the controller's QP without a
+    wall-time bound and the bridge waiting up to 30 s for a command, so that a loaded machine slows
+    the run down but cannot change it (a 1 s timeout damps a tick: measured at load 38)."""
     bridge = subprocess.Popen(
         [sys.executable, "-m", "sim_bridge.node", "--ros-args", "--params-file",
          str(ROOT / "config" / "nodes" / "sim_bridge.yaml"), "-p", f"max_ticks:={TICKS}",
          "-p", "initial_posture:=ladder_4_contacts", "-p", "execution:=lockstep",
-         "-p", "lockstep.startup_wait_s:=30.0"],
+         "-p", "lockstep.startup_wait_s:=30.0", "-p", "lockstep.command_timeout_s:=30.0"],
         env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     procs = [bridge]
     try:
