@@ -472,11 +472,19 @@ def reexecute(args) -> int:
             new_starts.append(change)
     import struct
 
-    recorded_cmds, recorded_states = {}, {}
+    recorded_cmds, recorded_states, lost = {}, {}, []
     for m in read_bag(bag):
-        if m.topic.strip("/") in ("joint_command", "joint_states") and len(m.data) >= 12:
+        topic = m.topic.strip("/")
+        if topic in ("joint_command", "joint_states") and len(m.data) >= 12:
             sec, nsec = struct.unpack_from("<iI", m.data, 4)
-            (recorded_cmds if m.topic.strip("/") == "joint_command" else recorded_states)[sec * NS + nsec] = m.data
+            (recorded_cmds if topic == "joint_command" else recorded_states)[sec * NS + nsec] = m.data
+        elif topic == "diagnostics":  # the recorded bridge damping ticks: no re-execution repeats that
+            try:
+                for status in m.decode().status:
+                    if status.name.endswith("/controller") and "lost" in status.message:
+                        lost.append(status.message)
+            except Exception:  # noqa: BLE001 - a diagnostic we cannot read is no evidence
+                pass
     common = sorted(set(recorded_cmds) & set(commands))
     from rclpy.serialization import deserialize_message
 
@@ -512,6 +520,7 @@ def reexecute(args) -> int:
               "commands_compared": len(common), "commands_differing": len(differ),
               "first_command_difference_s": differ[0] / NS if differ else None,
               "first_state_difference_s": state_differ[0] / NS if state_differ else None,
+              "recorded_controller_lost": lost[:5],
               "set_param": args.set_param or [], "wall_s": round(wall, 2), "failure": failure}
     if cmp["compared"]:
         print(f"base position deviation over {cmp['compared']} ticks ({cmp['from_s']} .. {cmp['to_s']} s): "
