@@ -198,9 +198,16 @@ def _nested(flat: dict) -> dict:
 
 
 def _merge(base: dict, over: dict) -> dict:
+    """``over`` on top of ``base`` (nested); an integer given for a float parameter becomes a float
+    (ROS types parameters strictly: 10 is refused where 10.0 is declared)."""
     out = dict(base)
     for key, value in over.items():
-        out[key] = _merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        elif isinstance(out.get(key), float) and isinstance(value, int) and not isinstance(value, bool):
+            out[key] = float(value)
+        else:
+            out[key] = value
     return out
 
 
