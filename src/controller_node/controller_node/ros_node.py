@@ -51,6 +51,7 @@ from __future__ import annotations
 import array
 import gc
 import os
+import struct
 import time
 from collections import deque
 
@@ -87,8 +88,9 @@ INPUT_REPORTS_PER_S = 5
 #: [s] wall time without a complete state, while active, before the silence is reported
 STATE_SILENCE_S = 2.0
 #: what decoding / checking a bad message raises (rclpy's deserialize_message: RMWError, a
-#: RuntimeError; msgs_py.cdr: CdrError, a ValueError; the checks: SpecError)
-_BAD_INPUT = (ClimbError, ValueError, TypeError, IndexError, RuntimeError)
+#: RuntimeError; msgs_py.cdr: CdrError, a ValueError, and struct.error on truncated bytes; the
+#: checks: SpecError)
+_BAD_INPUT = (ClimbError, ValueError, TypeError, IndexError, RuntimeError, struct.error)
 _GRIPPER = {"open": GripperCommand.OPEN, "close": GripperCommand.CLOSE, "position": GripperCommand.POSITION}
 _QP_STATUS = (ControllerState.QP_OK, ControllerState.QP_FAILED, ControllerState.QP_NOT_RUN)
 LATENCY_WINDOW = 20000  # ticks kept for the diagnostics percentiles
