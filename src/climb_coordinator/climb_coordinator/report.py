@@ -73,12 +73,20 @@ class RunData:
     fell: bool = False
     fall_reason: str = ""
     ft: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # sensor -> (t, (n, 3) force)
+    climb_result: dict = field(default_factory=dict)  # the summary of the last finished climb (climb/status)
     plans_log_ns: list[int] = field(default_factory=list)
     plans_transitions: list[int] = field(default_factory=list)
 
     @property
     def robot(self) -> str:
         return str(self.request.get("robot") or "g1")
+
+    @property
+    def scenario_name(self) -> str:
+        name = str(self.request.get("scenario_name") or "")
+        if name:
+            return name
+        return "custom scenario" if "\n" in self.scenario else pathlib.Path(self.scenario).name
 
     @property
     def scenario(self) -> str:
@@ -120,7 +128,8 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
         run.topics = {_name(c.topic): c.msgcount for c in reader.connections}
         wanted = [c for c in reader.connections
                   if _name(c.topic) in ("joint_states", "sim/base_truth", "controller/state", "sim/contacts",
-                                        "climb/request", "whole_body_plan") or _name(c.topic).startswith("ft/")]
+                                        "climb/request", "whole_body_plan", "climb/status")
+                  or _name(c.topic).startswith("ft/")]
         for conn, log_ns, raw in reader.messages(connections=wanted):
             topic = _name(conn.topic)
             msg = deserialize(reader.typestore, raw, conn.msgtype)
@@ -190,6 +199,13 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
                     run.request = doc if isinstance(doc, dict) else {"value": doc}
                 except (ValueError, TypeError):
                     run.request = {"text": msg.data}
+            elif topic == "climb/status":
+                if msg.phase in ("done", "failed", "cancelled"):
+                    try:
+                        doc = json.loads(msg.text)
+                    except (ValueError, TypeError):
+                        doc = {"text": msg.text}
+                    run.climb_result = {"phase": msg.phase, **(doc if isinstance(doc, dict) else {"value": doc})}
             elif topic == "whole_body_plan":
                 run.plans_log_ns.append(int(log_ns))
                 run.plans_transitions.append(len(msg.transitions))
@@ -424,7 +440,7 @@ def plot_report(run: RunData, path: str | pathlib.Path, robot=None, env=None, n_
     # FSM timeline
     ax = fig.add_subplot(grid[2, :])
     draw_fsm_timeline(ax, run)
-    where = "custom scenario" if "\n" in run.scenario else pathlib.Path(run.scenario).name
+    where = run.scenario_name
     fig.suptitle(f"{run.robot} on {where} ({run.mode or '?'} mode): {pathlib.Path(run.path).name}")
     return _save(plt, fig, path)
 
@@ -487,6 +503,8 @@ def summary(run: RunData) -> dict:
         "plans": len(run.plans_log_ns), "plan_transitions": run.plans_transitions,
         "fsm_final": run.fsm[-1] if run.fsm else "", "fsm_states": len(segments),
         "qp_failures": run.qp_failures, "fell": run.fell, "fall_reason": run.fall_reason,
+        "climb_result": {k: run.climb_result.get(k) for k in ("phase", "success", "rungs_reached", "failure_reason")
+                         if k in run.climb_result},
     }
     if len(run.tick_ms):
         out["tick_ms"] = {"p50": round(float(np.percentile(run.tick_ms, 50)), 3),
@@ -528,11 +546,15 @@ def write_report(run: RunData, out_dir: str | pathlib.Path, *, film: int = 8) ->
         paths["film_strip_png"] = film_strip(frames, out / "film_strip.png")
     info = summary(run)
     lines = [f"# Run report: {pathlib.Path(run.path).name}", "",
-             f"- bag: `{run.path}`", f"- robot: {run.robot}, mode: {run.mode or '?'}",
+             f"- bag: `{run.path}`", f"- robot: {run.robot} on {run.scenario_name}, mode: {run.mode or '?'}",
              f"- sim time: {info['sim_time_s']} s, plans received: {info['plans']} "
              f"(transitions {info['plan_transitions']})",
              f"- final FSM state: {info['fsm_final'] or '?'}, QP failures: {run.qp_failures}, "
              f"fell: {run.fell}{' (' + run.fall_reason + ')' if run.fall_reason else ''}"]
+    if run.climb_result:
+        r = run.climb_result
+        lines.append(f"- climb {r.get('phase')}: success {r.get('success')}, rungs reached {r.get('rungs_reached')} "
+                     f"of {r.get('rungs_requested')}{', ' + str(r.get('failure_reason')) if r.get('failure_reason') else ''}")
     if "tick_ms" in info:
         lines.append(f"- controller tick: p50 {info['tick_ms']['p50']} ms, p99 {info['tick_ms']['p99']} ms, "
                      f"max {info['tick_ms']['max']} ms")
