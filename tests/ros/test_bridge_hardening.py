@@ -163,7 +163,10 @@ def test_failed_reset_changes_nothing(bridge):
     for request, words in [(SimReset.Request(ladder="no_such_ladder"), "no_such_ladder"),
                            (SimReset.Request(robot="banana"), "banana"),
                            (SimReset.Request(q=[0.0, 1.0]), "q"),
-                           (SimReset.Request(initial_posture="upside_down"), "upside_down")]:
+                           (SimReset.Request(initial_posture="upside_down"), "upside_down"),
+                           (SimReset.Request(ladder="/etc/hostname"), "file path"),  # no file read over ROS
+                           (SimReset.Request(robot="/etc/hostname"), "file path"),
+                           (SimReset.Request(ladder="ladder: {n_rungs: -3}"), "ladder")]:
         response = client.call(SimReset, "sim/reset", request)
         assert response is not None and not response.success and words in response.error, (request, response)
     n = len(client.states)

@@ -71,6 +71,22 @@ def to_ns(stamp: Time) -> int:
 
 
 
+def check_service_sources(robot: str, ladder: str) -> None:
+    """A service request names a shipped robot and a shipped ladder or gives the spec's YAML text;
+    a file path is refused (a request over ROS must not make the node read files; the start-up
+    parameters may name paths). Empty = keep the current one."""
+    from climb_core.ladder import available_ladders
+    from climb_core.robot import available_robots
+
+    if robot and robot not in available_robots():
+        raise SpecError("robot", f"unknown robot {robot[:80]!r} (available: {', '.join(available_robots())}; "
+                                 "a file path is refused over the service)")
+    text = ladder.strip()
+    if text and "\n" not in ladder and not any(c in text for c in ":{[") and text not in available_ladders():
+        raise SpecError("ladder", f"no ladder named {text[:80]!r} (known: {', '.join(available_ladders())}); or give "
+                                  "the spec's YAML text (a file path is refused over the service)")
+
+
 class SimBridgeNode(Node):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
@@ -183,6 +199,7 @@ class SimBridgeNode(Node):
         world, the sim time and the last good robot / ladder (issue 20 row 7)."""
         self.callbacks += 1
         try:
+            check_service_sources(request.robot, request.ladder)
             self.bridge.reset(ResetRequest(
                 robot=request.robot, ladder=request.ladder or None, initial_posture=request.initial_posture,
                 q=np.asarray(request.q, dtype=float) if len(request.q) else None, seed=int(request.seed)))
