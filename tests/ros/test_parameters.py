@@ -51,8 +51,6 @@ NODES = [
 #: failures of other helpers' nodes at the time of writing (xfail, not strict: an XPASS says the
 #: owner fixed it and the entry can go); the lead removes them once fixed
 KNOWN_GAPS = {
-    "sim_bridge": "lockstep.command_delay_ticks has choices but no integer range (owner: sim_bridge / node_kit)",
-    "primitive_adaptation": "planning.collision_margin / self_collision_margin have no range (owner: planner_node)",
     "climb_coordinator": "parameters declared without descriptions (owner: climb_coordinator)",
 }
 
