@@ -207,6 +207,30 @@ def test_set_parameters_is_validated_with_the_schema(lone_controller):
     assert node.alive(), node.tail()
 
 
+def test_configure_that_fails_says_why_and_the_node_stays_unconfigured(lone_controller):
+    """A parameter the schema accepts but the configure cannot use (an unknown robot): configure
+    answers success = false, the reason is on diagnostics, the node stays unconfigured and a good
+    value then configures."""
+    from lifecycle_msgs.msg import Transition
+
+    node, client = lone_controller
+    if _lifecycle_state(client) == "inactive":
+        assert _change_state(client, Transition.TRANSITION_CLEANUP).success, node.tail()
+    assert _lifecycle_state(client) == "unconfigured"
+    _diagnostics(client)
+    client.spin(0.5)
+    assert client.set_parameters("controller", {"robot": "robot_that_does_not_exist"})[0].successful
+    answer = _change_state(client, Transition.TRANSITION_CONFIGURE)
+    assert answer is not None and answer.success is False
+    why = lambda: [s for d in _diagnostics(client) for s in d.status  # noqa: E731
+                   if s.name == "controller/lifecycle" and "configure failed" in s.message]
+    assert client.spin_until(lambda: why(), 30.0), node.tail()
+    assert "robot_that_does_not_exist" in why()[-1].message, why()[-1].message
+    assert _lifecycle_state(client) == "unconfigured" and node.alive()
+    assert client.set_parameters("controller", {"robot": "g1"})[0].successful
+    assert _change_state(client, Transition.TRANSITION_CONFIGURE).success, node.tail()
+
+
 def _diagnostics(client) -> list:
     from diagnostic_msgs.msg import DiagnosticArray
 

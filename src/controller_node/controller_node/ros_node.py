@@ -257,8 +257,10 @@ class ControllerNode(LifecycleNode):
             robot = load_robot(p.robot)
             env = build_environment(load_scenario(p.ladder))
             self.controller = Controller(robot, p, env)
-        except (ClimbError, ValueError, OSError) as err:
+        except (ClimbError, ValueError, OSError) as err:  # the node stays unconfigured, nothing built
             self.get_logger().error(f"configure failed: {err}")
+            diagnose(self, "controller/lifecycle", f"configure failed: {err}", level=2,
+                     values={"field": getattr(err, "field", ""), "rule": getattr(err, "rule", str(err))})
             return TransitionCallbackReturn.FAILURE
         self.robot, self.env = robot, env
         self.estimator = GroundTruthEstimator(robot.joint_names)
