@@ -253,10 +253,11 @@ def reexecution_setup(request: dict, set_params: list[str]) -> tuple[dict, dict,
     if delay and "actuation_latency_s" not in controller:
         controller["actuation_latency_s"] = delay * load_controller_params().control_period_s
     # lockstep.command_timeout_s: the relay never drops a command, so a timeout could only come
-    # from a loaded machine (and would damp a tick the recorded run did not damp)
+    # from a loaded machine (and would damp a tick the recorded run did not damp): 5 s, not 1 s
+    # (a tick the recorded controller did not answer costs that long)
     bridge = {"robot": robot, "ladder": scenario, "initial_posture": posture, "execution": "lockstep",
               "seed": int(request.get("seed") or 0), "lockstep.command_delay_ticks": delay,
-              "lockstep.command_timeout_s": 30.0, "lockstep.startup_wait_s": 60.0}
+              "lockstep.command_timeout_s": 5.0, "lockstep.startup_wait_s": 60.0}
     for item in set_params:
         try:
             target, assignment = item.split(":", 1)
@@ -290,6 +291,16 @@ def reexecute(args) -> int:
         print(f"error: found the start tick of {len(starts)} of {len(plans)} plans in controller/state", file=sys.stderr)
         return 2
     bridge_p, controller_p, posture = reexecution_setup(run.request, args.set_param or [])
+    # the recorded controller's first command of the run (after the last sim reset): a controller
+    # activated after the world's first state (the coordinator's sequence) let the bridge damp the
+    # ticks before it, for as long as the activation took in wall time: a run no re-execution
+    # repeats (reported: recorded_first_command_s > 0 and recorded_controller_lost)
+    first_cmd, previous = None, None
+    for m in read_bag(bag, topics=["/joint_command", "joint_command"]):
+        stamp = int.from_bytes(m.data[4:8], "little", signed=True) * NS + int.from_bytes(m.data[8:12], "little")
+        if previous is None or stamp < previous:  # the first command, or the first after a reset
+            first_cmd = stamp
+        previous = stamp
     period_ns = 5_000_000
     end_ns = int(round(run.base_t[-1] * NS))
     if args.max_sim_s is not None:
@@ -469,8 +480,12 @@ def reexecute(args) -> int:
     tails = {}
     for name, f in logs.items():
         f.seek(0)
-        tails[name] = f.read()[-2000:]
+        text = f.read()
+        tails[name] = text[-2000:]
         f.close()
+        if args.keep_logs:
+            pathlib.Path(args.keep_logs).mkdir(parents=True, exist_ok=True)
+            (pathlib.Path(args.keep_logs) / f"{name}.log").write_text(text)
     tmp.cleanup()
     new_starts = []  # the tick at which the new controller's FSM left its state after each plan
     for g in gated:
@@ -528,6 +543,7 @@ def reexecute(args) -> int:
               "first_command_difference_s": differ[0] / NS if differ else None,
               "first_state_difference_s": state_differ[0] / NS if state_differ else None,
               "recorded_controller_lost": lost[:5],
+              "recorded_first_command_s": first_cmd / NS if first_cmd is not None else None,
               "set_param": args.set_param or [], "wall_s": round(wall, 2), "failure": failure}
     if cmp["compared"]:
         print(f"base position deviation over {cmp['compared']} ticks ({cmp['from_s']} .. {cmp['to_s']} s): "
@@ -559,6 +575,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="[s] re-execution: the lock-step waits this long for a plan to reach the controller")
     ap.add_argument("--gripper-delay-s", type=float, default=0.02,
                     help="[s] re-execution: a gripper request reaches the bridge this long before the next command")
+    ap.add_argument("--keep-logs", default=None, metavar="DIR", help="re-execution: keep the nodes' logs in DIR")
     ap.add_argument("--reexecute-namespace", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if not args.rate > 0:
