@@ -101,3 +101,21 @@ def test_perturbations_checked_against_the_world(backend):
         assert info.value.field == f"perturbation.{field}"
     backend.check_perturbation(PerturbRequest("rung_offset", rung=n, dx=0.01))
     backend.check_perturbation(PerturbRequest("drop", mass=2.0, radius=0.1, speed=3.0, target_link="left_hand"))
+
+
+def test_same_numbers_as_the_in_process_judge(backend):
+    """sim/contacts' computation agrees with climb_coordinator.judge (the in-process climb's)."""
+    from climb_coordinator.judge import limb_loads
+
+    backend.reset(ResetRequest(initial_posture="ladder_4_contacts"))
+    hold_still(backend, 20)
+    snap, loads = backend.contacts(), limb_loads(backend)
+    for c in snap.limbs:
+        load = loads.get(c.limb)
+        if load is None:
+            assert c.normal_force == 0.0 and c.tangential_force == 0.0
+            continue
+        assert c.normal_force == pytest.approx(max(load.normal_force, 0.0), abs=1e-9)
+        assert c.tangential_force == pytest.approx(load.tangential_force, abs=1e-9)
+        if not c.grasped:
+            assert c.surface == load.surface
