@@ -151,7 +151,7 @@ def _make_node():
             self.declare_parameter("robot", "g1")  # default robot of a request without one
             self.declare_parameter("heartbeat_timeout_s", 1.0)  # [s] wall time without controller/state = dead node
             self.declare_parameter("service_timeout_s", 30.0)  # [s] wall time for one service call of the run
-            self.declare_parameter("plan_wait_margin_s", 60.0)  # [s] beyond the planning timeout for the whole pipeline
+            self.declare_parameter("plan_wait_margin_s", 300.0)  # [s] beyond the planning timeout for the whole pipeline (a loaded machine)
             self.declare_parameter("markers_period_s", 1.0)  # [s] wall period of climb/markers
             self.declare_parameter("max_forced_replans", 2)  # [-] replans after replan_needed per climb
             self.declare_parameter("controller", "controller")  # controller lifecycle node name
@@ -206,6 +206,7 @@ def _make_node():
             self._types = {"ChangeState": ChangeState, "GetState": GetState, "SetParameters": SetParameters,
                            "Trigger": Trigger, "SimReset": SimReset, "GetParameters": GetParameters}
             self._marker_scene = None
+            self._make_measured_node()
             self.create_timer(float(self.get_parameter("markers_period_s").value),
                               guarded(self, self._publish_markers, "markers"), callback_group=g)
             try:  # the rung check's primitive library, loaded once now (requests are checked at once)
@@ -229,27 +230,49 @@ def _make_node():
                 self.contacts_at = time.monotonic()
                 self._cond.notify_all()
 
-        def wait_message(self, topic: str, timeout: float) -> bytes:
-            """The next message of ``topic`` (raw bytes), through a subscription made for it: the
-            200 Hz state topics are taken only when needed (a sim reset, a replan)."""
+        # -- the measured state (joint_states, sim/base_truth at 200 Hz) is read only when needed
+        #    (a sim reset, a replan): its subscriptions live on a second node that only the
+        #    worker spins, with its own executor (DDS keeps the newest messages meanwhile; no
+        #    subscription is made or destroyed while the main executor spins)
+        def _make_measured_node(self) -> None:
             from nav_msgs.msg import Odometry
+            from rclpy.executors import SingleThreadedExecutor
             from sensor_msgs.msg import JointState
 
-            kind = {"joint_states": JointState, "sim/base_truth": Odometry}[topic]
-            got: list[bytes] = []
-            event = threading.Event()
+            self._measured_node = Node(f"{NODE_NAME}_measured", context=self.context)
+            self._measured: dict[str, bytes] = {}
+            self._measured_count = {"joint_states": 0, "sim/base_truth": 0}
+            for topic, kind in (("joint_states", JointState), ("sim/base_truth", Odometry)):
+                self._measured_node.create_subscription(kind, topic, lambda d, t=topic: self._on_measured(t, d),
+                                                        qos_for(topic), raw=True)
+            self._measured_exec = SingleThreadedExecutor(context=self.context)
+            self._measured_exec.add_node(self._measured_node)
 
-            def on_msg(data: bytes) -> None:
-                if not got:
-                    got.append(data)
-                    event.set()
-            sub = self.create_subscription(kind, topic, on_msg, qos_for(topic), raw=True, callback_group=self.group)
-            try:
-                if not event.wait(timeout):
+        def _on_measured(self, topic: str, data: bytes) -> None:
+            self._measured[topic] = data
+            self._measured_count[topic] += 1
+
+        def drain_measured(self) -> None:
+            """Take every measured-state message queued now (the newest one stays)."""
+            for _ in range(200):
+                n = sum(self._measured_count.values())
+                self._measured_exec.spin_once(timeout_sec=0.0)
+                if sum(self._measured_count.values()) == n:
+                    return
+
+        def wait_message(self, topic: str, timeout: float, accept=None) -> bytes:
+            """The newest message of ``topic`` received from now on (raw bytes) for which
+            ``accept(bytes)`` holds (default: any)."""
+            count0 = self._measured_count[topic]
+            deadline = time.monotonic() + timeout
+            while True:
+                self._measured_exec.spin_once(timeout_sec=0.02)
+                self.drain_measured()
+                data = self._measured.get(topic)
+                if self._measured_count[topic] > count0 and (accept is None or accept(data)):
+                    return data
+                if time.monotonic() > deadline:
                     raise ClimbError(f"no {topic} within {timeout:.1f} s (is the sim_bridge running?)")
-            finally:
-                self.destroy_subscription(sub)
-            return got[0]
 
         def _on_plan(self, msg) -> None:
             with self._cond:
@@ -477,13 +500,15 @@ def _make_node():
             if run.cancel.is_set():
                 raise Cancelled()
             if self.get_parameter("reset_sim").value:
+                self.drain_measured()
                 res = self.call(self.cli_reset, self._types["SimReset"].Request(
                     robot=req.robot, ladder=text, initial_posture=fixture, seed=int(req.seed or 0)))
                 if not res.success:
                     raise ClimbError(f"sim/reset refused: {res.error}")
                 # the new world's first state must reach the controller before it activates (it
                 # resets its contacts on the first state it ticks)
-                self.wait_message("joint_states", 3.0)
+                self.wait_message("joint_states", 5.0,
+                                  accept=lambda d: self._js_reader.read(d).stamp_ns < 500_000_000)
                 time.sleep(0.05)
             count0 = self.state_count
             self.change(ACTIVATE, "activate")
@@ -552,6 +577,7 @@ def _make_node():
                 return str(exc)
 
         def measured_q(self, joint_names: list[str]) -> np.ndarray:
+            self.drain_measured()
             js = self.wait_message("joint_states", 3.0)
             base = self.wait_message("sim/base_truth", 3.0)
             j = self._js_reader.read(js)
@@ -580,7 +606,23 @@ def _make_node():
             scene = self._marker_scene
             if scene is None:
                 return
-            msg = build_markers(self, scene)
+            state: dict = {}
+            run = self.run
+            session = run.session if run is not None else None
+            st = self.controller_state() if session is not None and session.current is not None else None
+            if st is not None and session.current.transitions:
+                t = session.current.transitions[min(int(st.transition_index), len(session.current.transitions) - 1)]
+                state["current"], state["next_stance"] = t.stance, t.target_stance
+                c = self.contacts
+                if c is not None:
+                    try:
+                        from .markers import environment_of, forces_from_contacts
+
+                        state["forces"] = forces_from_contacts(c.limbs, c.normal_force, c.tangential_force, t.stance,
+                                                               environment_of(scene[1]), c.grasped)
+                    except ImportError:
+                        pass
+            msg = build_markers(self, scene, state)
             if msg is not None:
                 safe_publish(self.pub_markers, msg)
 
@@ -702,6 +744,7 @@ def _make_node():
             node, run = self.node, self.climb
             dead_after = float(node.get_parameter("heartbeat_timeout_s").value)
             seen = node.state_count
+            suspect = None  # [s] when the controller first looked dead
             while True:
                 with node._cond:
                     if node.state_count == seen:
@@ -721,9 +764,16 @@ def _make_node():
                 # bridge steps on alone only once it declared the controller lost); both silent
                 # long: the bridge (a machine this loaded is slow, not dead, for a while)
                 if silent > dead_after and node.contacts_at > node.state_at + 0.5 * dead_after:
-                    s.fault = (f"dead node: controller: no controller/state for {silent:.1f} s while the "
-                               f"sim_bridge runs on (heartbeat bound {dead_after:.1f} s)")
-                    return s
+                    # confirmed once the callbacks had time to drain (this thread may have been the
+                    # one starved on a loaded machine)
+                    if suspect is None:
+                        suspect = now
+                    elif now - suspect >= 0.2:
+                        s.fault = (f"dead node: controller: no controller/state for {silent:.1f} s while the "
+                                   f"sim_bridge runs on (heartbeat bound {dead_after:.1f} s)")
+                        return s
+                else:
+                    suspect = None
                 if silent > max(5.0, 5.0 * dead_after):
                     s.fault = (f"dead node: sim_bridge (or both): no controller/state and no sim/contacts for "
                                f"{silent:.1f} s")
@@ -839,18 +889,18 @@ def fill_result(result: Any, climb_id: str, summary: dict) -> Any:
     return result
 
 
-def build_markers(node: Any, scene: tuple[str, str]):
-    """climb/markers: climb_coordinator.markers (the scene, stances, loads, CoM) when present,
-    else the scene's surfaces alone."""
+def build_markers(node: Any, scene: tuple[str, str], state: dict | None = None):
+    """climb/markers: climb_coordinator.markers (the scene, the current and next stance, the
+    contact forces with their cones) when present, else the scene's surfaces alone."""
     try:
-        from . import markers  # noqa: F401
+        from . import markers
     except ImportError:
         markers = None
     if markers is not None and hasattr(markers, "build_markers"):
         try:
-            return markers.build_markers(node, scene)
+            return markers.build_markers(node, scene, **(state or {}))
         except TypeError:
-            pass
+            return markers.build_markers(node, scene)
     return scene_markers(node, scene[1])
 
 

@@ -191,10 +191,13 @@ def rungs_reached(feet: dict[str, int | None]) -> int:
 
 def replan_stance(plan: WholeBodyPlan, index: int) -> Stance:
     """The stance to replan from after ``replan_needed`` at transition ``index``: the stance the
-    transition started from (the moving limb's hold then is where it was lifted from)."""
-    if 0 <= index < len(plan.transitions):
-        return plan.transitions[index].stance
-    return plan.transitions[-1].target_stance if plan.transitions else plan.initial_stance
+    transition started from (the previous transition's target; the moving limb on the hold it
+    was lifted from, where the measured state is projected back: a limb whose search ended
+    inside the nominal surface it missed cannot start a plan there)."""
+    if not plan.transitions:
+        return plan.initial_stance
+    index = min(max(index, 0), len(plan.transitions))
+    return plan.transitions[index - 1].target_stance if index > 0 else plan.initial_stance
 
 
 def _stance_feet_rung(stance: Stance) -> int:
