@@ -295,17 +295,39 @@ def reexecute(args) -> int:
     # activated after the world's first state (the coordinator's sequence) let the bridge damp the
     # ticks before it, for as long as the activation took in wall time: a run no re-execution
     # repeats (reported: recorded_first_command_s > 0 and recorded_controller_lost)
-    first_cmd, previous = None, None
+    first_cmd, previous, recorded_first = None, None, {}
     for m in read_bag(bag, topics=["/joint_command", "joint_command"]):
         stamp = int.from_bytes(m.data[4:8], "little", signed=True) * NS + int.from_bytes(m.data[8:12], "little")
         if previous is None or stamp < previous:  # the first command, or the first after a reset
             first_cmd = stamp
+            recorded_first = {stamp: m.data}
         previous = stamp
     period_ns = 5_000_000
     end_ns = int(round(run.base_t[-1] * NS))
     if args.max_sim_s is not None:
         end_ns = min(end_ns, int(args.max_sim_s * NS))
     bridge_p["max_ticks"] = end_ns // period_ns + 1
+    # the recorded bridge may have damped a few more ticks after the controller's first command
+    # (stale on arrival while it retried every lost_retry_s): "controller back at t = X" says when
+    # it took one again
+    accepted = first_cmd
+    for m in read_bag(bag, topics=["/diagnostics", "diagnostics"]):
+        text = bytes(m.data)
+        if b"back at t = " not in text:
+            continue
+        try:
+            for status in m.decode().status:
+                if status.name.endswith("/controller") and "back at t = " in status.message:
+                    accepted = int(round(float(status.message.split("back at t = ")[1].split()[0]) * NS))
+                    break
+        except Exception:  # noqa: BLE001 - unreadable: keep the first command
+            pass
+        break
+    late = bool(args.damp_unanswered and first_cmd is not None and first_cmd > 0)
+    if accepted is None or not late or accepted < first_cmd:
+        accepted = first_cmd
+    if late:  # the controller starts at the same tick as the recorded one; the ticks before are damped
+        controller_p["autostart"] = False
     ns = args.reexecute_namespace or f"reexecute_{os.getpid()}"
     tmp = tempfile.TemporaryDirectory(prefix="reexecute_")
     params = pathlib.Path(tmp.name)
@@ -331,6 +353,8 @@ def reexecute(args) -> int:
     from nav_msgs.msg import Odometry
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
+    from rclpy.serialization import deserialize_message
+
     from climb_core.ros_env import apply_local_dds_env, local_dds_env
 
     apply_local_dds_env()
@@ -346,7 +370,7 @@ def reexecute(args) -> int:
     grippers: list[tuple[int, bytes]] = []  # the new controller's gripper requests not yet relayed
     commands: dict[int, bytes] = {}  # the new controller's joint_command per stamp
     states: dict[int, bytes] = {}  # the new bridge's joint_states per stamp
-    state = {"next_plan": 0, "relayed": 0, "done": False, "last_state": -1}
+    state = {"next_plan": 0, "relayed": 0, "done": False, "last_state": -1, "damped": 0, "matched": False}
     pending: list[tuple[int, bytes]] = []  # the controller's commands not yet relayed
     gate = {"until": 0.0}  # [s, monotonic] no command relayed before this
     delay = int(bridge_p.get("lockstep.command_delay_ticks", 0) or 0)
@@ -381,6 +405,13 @@ def reexecute(args) -> int:
         now = time.monotonic()
         while pending and now >= gate["until"]:
             stamp, data = pending[0]
+            if not state["matched"]:  # the first command waits until this node hears the new bridge's
+                # base truth (the comparison's data), matched a moment after its discovery
+                if node.count_publishers(f"/{ns}/sim/base_truth") < 1:
+                    return
+                state["matched"] = True
+                gate["until"] = now + 0.3
+                return
             if delay and state["last_state"] < stamp:
                 return  # delay 1: the grippers of this tick may still come
             due = [g for g in grippers if g[0] + (1 - delay) * period_ns <= stamp]
@@ -397,7 +428,11 @@ def reexecute(args) -> int:
                 gated.append(stamp + (1 + delay) * period_ns)  # the tick at which the controller takes it
                 gate["until"] = now + args.plan_delivery_s
                 return
-            pubs["cmd"].publish(data)
+            if late and stamp < accepted:  # the recorded bridge ignored it and damped this tick
+                pubs["cmd"].publish(damping(stamp))
+                state["damped"] += 1
+            else:
+                pubs["cmd"].publish(data)
             pending.pop(0)
             state["relayed"] += 1
 
@@ -418,8 +453,21 @@ def reexecute(args) -> int:
 
     node.create_subscription(JointCommand, "joint_command_gate", on_command, deep, raw=True)
     node.create_subscription(GripperCommand, "gripper_command_gate", on_gripper, deep, raw=True)
-    node.create_subscription(JointState, "joint_states", lambda d: states.__setitem__(_stamp_of(d), bytes(d)), deep,
-                             raw=True)
+    damp = {"queue": [], "names": [], "future": None, "active": not late}
+
+    def damping(stamp: int):
+        msg = JointCommand(names=damp["names"], modes=bytes([JointCommand.DAMPING] * len(damp["names"])),
+                           values=[0.0] * len(damp["names"]))
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, NS)
+        return msg
+
+    def on_joint_states(data: bytes) -> None:
+        stamp = _stamp_of(data)
+        states[stamp] = bytes(data)
+        if late and stamp < first_cmd:
+            damp["queue"].append(stamp)  # answered with DAMPING in the main loop (below)
+
+    node.create_subscription(JointState, "joint_states", on_joint_states, deep, raw=True)
 
     node.create_subscription(Odometry, "sim/base_truth", on_base, deep)
     node.create_subscription(ControllerState, "controller/state", on_state, deep)
@@ -431,6 +479,19 @@ def reexecute(args) -> int:
     try:
         procs["controller"] = subprocess.Popen(controller_cmd, env=env, cwd=ROOT, stdout=logs["controller"],
                                                stderr=subprocess.STDOUT, start_new_session=True)
+        if late:
+            from lifecycle_msgs.msg import Transition
+            from lifecycle_msgs.srv import ChangeState
+
+            lifecycle = node.create_client(ChangeState, "controller/change_state")
+            if not lifecycle.wait_for_service(timeout_sec=60.0):
+                raise RuntimeError("the controller's lifecycle service did not come up")
+            future = lifecycle.call_async(ChangeState.Request(transition=Transition(id=Transition.TRANSITION_CONFIGURE)))
+            rclpy.spin_until_future_complete(node, future, timeout_sec=60.0)
+            if not (future.done() and future.result() is not None and future.result().success):
+                raise RuntimeError("the controller refused to configure")
+            first = deserialize_message(next(iter(sorted(recorded_first.items())))[1], JointCommand)
+            damp["names"] = list(first.names)
         # the bridge starts ticking once it sees a joint_command publisher (this node's): create it
         # only when the controller's gated commands and its plan subscription are matched here,
         # so that no command of the first ticks is lost (the bridge would damp those ticks)
@@ -450,6 +511,15 @@ def reexecute(args) -> int:
             rclpy.spin_once(node, timeout_sec=0.005)
             if pending:
                 relay()
+            while damp["queue"]:  # the ticks the recorded controller did not answer: damped
+                pubs["cmd"].publish(damping(damp["queue"].pop(0)))
+                state["damped"] += 1
+            if late and damp["future"] is None and states and max(states) >= first_cmd:
+                # the state the recorded controller answered first is out, the bridge waits for its
+                # command: activate the new controller now; it ticks on that state (as the recorded
+                # one did, activated while the bridge damped the ticks before)
+                damp["future"] = lifecycle.call_async(ChangeState.Request(
+                    transition=Transition(id=Transition.TRANSITION_ACTIVATE)))
             dead = [n for n, p in procs.items() if p.poll() is not None]
             if dead and not state["done"]:
                 # the bridge ends by itself at max_ticks: drain what it published last
@@ -500,7 +570,7 @@ def reexecute(args) -> int:
         if topic in ("joint_command", "joint_states") and len(m.data) >= 12:
             sec, nsec = struct.unpack_from("<iI", m.data, 4)
             (recorded_cmds if topic == "joint_command" else recorded_states)[sec * NS + nsec] = m.data
-        elif topic == "diagnostics":  # the recorded bridge damping ticks: no re-execution repeats that
+        elif topic == "diagnostics":  # the recorded bridge's damped ticks (controller lost / back)
             try:
                 for status in m.decode().status:
                     if status.name.endswith("/controller") and "lost" in status.message:
@@ -544,6 +614,7 @@ def reexecute(args) -> int:
               "first_state_difference_s": state_differ[0] / NS if state_differ else None,
               "recorded_controller_lost": lost[:5],
               "recorded_first_command_s": first_cmd / NS if first_cmd is not None else None,
+              "damped_ticks": state["damped"], "recorded_first_accepted_s": accepted / NS if accepted is not None else None,
               "set_param": args.set_param or [], "wall_s": round(wall, 2), "failure": failure}
     if cmp["compared"]:
         print(f"base position deviation over {cmp['compared']} ticks ({cmp['from_s']} .. {cmp['to_s']} s): "
@@ -575,6 +646,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="[s] re-execution: the lock-step waits this long for a plan to reach the controller")
     ap.add_argument("--gripper-delay-s", type=float, default=0.02,
                     help="[s] re-execution: a gripper request reaches the bridge this long before the next command")
+    ap.add_argument("--damp-unanswered", action=argparse.BooleanOptionalAction, default=True,
+                    help="re-execution: damp the ticks before the recorded controller's first command, as the "
+                         "recorded bridge did (default: on)")
     ap.add_argument("--keep-logs", default=None, metavar="DIR", help="re-execution: keep the nodes' logs in DIR")
     ap.add_argument("--reexecute-namespace", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
