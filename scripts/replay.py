@@ -23,7 +23,11 @@ controller: the new run takes each plan on the same sim tick as the recorded one
 requests are relayed too, while the bridge waits for the next tick's command, so that each acts
 from the tick after its stamp (as the recorded one did: it reached the bridge after the joint
 command of its tick). The controller runs with the recorded request's ``controller_overrides``
-when it has them (else config/climb.yaml's, as the coordinator applies them). The base positions
+when it has them (else config/climb.yaml's, as the coordinator applies them). A recorded
+controller that answered late (the coordinator activates it after the world's first state) left
+the recorded bridge damping the ticks before, and after, until its "controller back at t"
+diagnostic: those ticks are damped again and the new controller is activated at the state the
+recorded one answered first (``--no-damp-unanswered``: autostart instead). The base positions
 (``sim/base_truth``) of both runs are then compared at equal sim stamps: max and RMS deviation
 [mm]; the first tick whose joint command or joint state differs is reported too (a lock-step run
 is bit-identical: 0 mm when nothing changed). ``--set-param controller:NAME=VALUE`` changes a
