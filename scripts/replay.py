@@ -374,9 +374,10 @@ def reexecute(args) -> int:
     grippers: list[tuple[int, bytes]] = []  # the new controller's gripper requests not yet relayed
     commands: dict[int, bytes] = {}  # the new controller's joint_command per stamp
     states: dict[int, bytes] = {}  # the new bridge's joint_states per stamp
-    state = {"next_plan": 0, "relayed": 0, "done": False, "last_state": -1, "damped": 0, "matched": False}
+    state = {"next_plan": 0, "relayed": 0, "done": False, "last_state": -1, "damped": 0, "matched": False,
+             "plans_accepted": 0}
     pending: list[tuple[int, bytes]] = []  # the controller's commands not yet relayed
-    gate = {"until": 0.0}  # [s, monotonic] no command relayed before this
+    gate = {"until": 0.0, "plan": 0}  # [s, monotonic] no command relayed before this; plan awaited
     delay = int(bridge_p.get("lockstep.command_delay_ticks", 0) or 0)
 
     def _stamp_of(data: bytes) -> int:
@@ -407,6 +408,8 @@ def reexecute(args) -> int:
           from t + T too, on every run. With a delay the command of t waits for the controller's
           state of t, published after its grippers."""
         now = time.monotonic()
+        if gate["plan"] and state["plans_accepted"] >= gate["plan"]:
+            gate["until"], gate["plan"] = now, 0  # the controller took the plan: go on at once
         while pending and now >= gate["until"]:
             stamp, data = pending[0]
             if not state["matched"]:  # the first command waits until this node hears the new bridge's
@@ -430,7 +433,9 @@ def reexecute(args) -> int:
                 plan_pub.publish(plans[i])
                 state["next_plan"] = i + 1
                 gated.append(stamp + (1 + delay) * period_ns)  # the tick at which the controller takes it
-                gate["until"] = now + args.plan_delivery_s
+                # until the controller says it accepted it (its controller/plan diagnostic), at most
+                # plan_delivery_s (the bridge waits lockstep.command_timeout_s = 5 s)
+                gate["until"], gate["plan"] = now + args.plan_delivery_s, i + 1
                 return
             if late and stamp < accepted:  # the recorded bridge ignored it and damped this tick
                 pubs["cmd"].publish(damping(stamp))
@@ -472,6 +477,15 @@ def reexecute(args) -> int:
             damp["queue"].append(stamp)  # answered with DAMPING in the main loop (below)
 
     node.create_subscription(JointState, "joint_states", on_joint_states, deep, raw=True)
+
+    def on_diagnostics(msg) -> None:
+        for status in msg.status:
+            if status.name.endswith("controller/plan") and status.message.startswith("accepted"):
+                state["plans_accepted"] += 1
+
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    node.create_subscription(DiagnosticArray, "diagnostics", on_diagnostics, deep)
 
     node.create_subscription(Odometry, "sim/base_truth", on_base, deep)
     node.create_subscription(ControllerState, "controller/state", on_state, deep)
@@ -646,8 +660,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tolerance-mm", type=float, default=1.0, help="[mm] re-execution: 'reproduced' when max <= this")
     ap.add_argument("--max-sim-s", type=float, default=None, help="[s] re-execution: stop at this sim time")
     ap.add_argument("--timeout", type=float, default=600.0, help="[s] re-execution: wall-time bound")
-    ap.add_argument("--plan-delivery-s", type=float, default=0.15,
-                    help="[s] re-execution: the lock-step waits this long for a plan to reach the controller")
+    ap.add_argument("--plan-delivery-s", type=float, default=3.0,
+                    help="[s] re-execution: the lock-step waits for the controller to accept a plan, at most this long")
     ap.add_argument("--gripper-delay-s", type=float, default=0.02,
                     help="[s] re-execution: a gripper request reaches the bridge this long before the next command")
     ap.add_argument("--damp-unanswered", action=argparse.BooleanOptionalAction, default=True,
