@@ -412,9 +412,10 @@ def reexecute(args) -> int:
             gate["until"], gate["plan"] = now, 0  # the controller took the plan: go on at once
         while pending and now >= gate["until"]:
             stamp, data = pending[0]
-            if not state["matched"]:  # the first command waits until this node hears the new bridge's
-                # base truth (the comparison's data), matched a moment after its discovery
-                if node.count_publishers(f"/{ns}/sim/base_truth") < 1:
+            if not state["matched"]:  # the first command waits until the new bridge's command
+                # subscription and base truth publisher (the comparison's data) are matched here
+                if (pubs["cmd"].get_subscription_count() < 1 or pubs["gripper"].get_subscription_count() < 1
+                        or subs["base"].get_publisher_count() < 1):
                     return
                 state["matched"] = True
                 gate["until"] = now + 0.3
@@ -460,8 +461,8 @@ def reexecute(args) -> int:
         if delay:
             relay()
 
-    node.create_subscription(JointCommand, "joint_command_gate", on_command, deep, raw=True)
-    node.create_subscription(GripperCommand, "gripper_command_gate", on_gripper, deep, raw=True)
+    subs = {"gate": node.create_subscription(JointCommand, "joint_command_gate", on_command, deep, raw=True),
+            "gripper": node.create_subscription(GripperCommand, "gripper_command_gate", on_gripper, deep, raw=True)}
     damp = {"queue": [], "names": [], "future": None, "active": not late}
 
     def damping(stamp: int):
@@ -478,16 +479,20 @@ def reexecute(args) -> int:
 
     node.create_subscription(JointState, "joint_states", on_joint_states, deep, raw=True)
 
+    new_lost: list[str] = []
+
     def on_diagnostics(msg) -> None:
         for status in msg.status:
             if status.name.endswith("controller/plan") and status.message.startswith("accepted"):
                 state["plans_accepted"] += 1
+            elif status.name.endswith("sim_bridge/controller") or status.name.endswith("sim_bridge/command"):
+                new_lost.append(f"{msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9:.3f}: {status.message}")
 
     from diagnostic_msgs.msg import DiagnosticArray
 
     node.create_subscription(DiagnosticArray, "diagnostics", on_diagnostics, deep)
 
-    node.create_subscription(Odometry, "sim/base_truth", on_base, deep)
+    subs["base"] = node.create_subscription(Odometry, "sim/base_truth", on_base, deep)
     node.create_subscription(ControllerState, "controller/state", on_state, deep)
     env = local_dds_env()
     procs = {}
@@ -514,8 +519,8 @@ def reexecute(args) -> int:
         # only when the controller's gated commands and its plan subscription are matched here,
         # so that no command of the first ticks is lost (the bridge would damp those ticks)
         deadline = time.monotonic() + 60.0
-        while (node.count_publishers(f"/{ns}/joint_command_gate") < 1
-               or node.count_subscribers(f"/{ns}/whole_body_plan") < 1):
+        while (subs["gate"].get_publisher_count() < 1 or subs["gripper"].get_publisher_count() < 1
+               or plan_pub.get_subscription_count() < 1):  # matched, not only discovered
             rclpy.spin_once(node, timeout_sec=0.05)
             if procs["controller"].poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError("the controller did not come up")
@@ -529,7 +534,8 @@ def reexecute(args) -> int:
             rclpy.spin_once(node, timeout_sec=0.005)
             if pending:
                 relay()
-            while damp["queue"]:  # the ticks the recorded controller did not answer: damped
+            while damp["queue"] and pubs["cmd"].get_subscription_count() > 0:  # ticks the recorded
+                # controller did not answer: damped (once the bridge hears this node)
                 pubs["cmd"].publish(damping(damp["queue"].pop(0)))
                 state["damped"] += 1
             if late and damp["future"] is None and states and max(states) >= first_cmd:
@@ -630,7 +636,7 @@ def reexecute(args) -> int:
               "commands_compared": len(common), "commands_differing": len(differ),
               "first_command_difference_s": differ[0] / NS if differ else None,
               "first_state_difference_s": state_differ[0] / NS if state_differ else None,
-              "recorded_controller_lost": lost[:5],
+              "recorded_controller_lost": lost[:5], "reexecuted_bridge_reports": new_lost[:5],
               "recorded_first_command_s": first_cmd / NS if first_cmd is not None else None,
               "damped_ticks": state["damped"], "recorded_first_accepted_s": accepted / NS if accepted is not None else None,
               "set_param": args.set_param or [], "wall_s": round(wall, 2), "failure": failure}
