@@ -96,7 +96,8 @@ def test_fixture_stance_is_a_fixed_point(g1, env):
     stance, q = fixtures.get("ladder_4_contacts", g1, env)
     res = ik.solve(g1, env, q, stance)
     assert res.success and res.iterations == 0 and res.attempts == 1
-    np.testing.assert_array_equal(res.q, q)
+    # unchanged up to the quaternion's renormalisation (1 ulp with today's wheels)
+    np.testing.assert_allclose(res.q, q, rtol=0.0, atol=1e-12)
 
 
 def test_bad_input_names_the_field(g1, env, ladder_stance):
