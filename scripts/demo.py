@@ -1,8 +1,10 @@
 #!/usr/bin/env python3
-"""`make demo`: G1 plans and executes a 2-step climb of the default ladder in QP mode
-(in-process, lock-step) and writes out/demo/: bag/ (rosbag2 MCAP), plots.png (CoM path, contact
-forces against their cones, the most loaded joints' torques against their limits, controller tick
-times), film_strip.png (headless snapshots). The last stdout line is the JSON summary."""
+"""`make demo`: G1 climbs 2 rungs of the default ladder in QP mode through the ROS 2 graph (every
+node of config/graph.yaml in its own process, lock-step, headless) and writes out/demo/: bag/
+(rosbag2 MCAP of every topic, by the recorder node), report/ (scripts/report.py: CoM path, contact
+forces against their cones, the most loaded joints against their limits, tick times, FSM
+timeline, film strip), logs/ (one per node). The last stdout line is the JSON summary.
+Options are scripts/climb.py's (later ones override the defaults, e.g. --graph inprocess)."""
 from __future__ import annotations
 
 import pathlib
@@ -16,8 +18,8 @@ import climb  # noqa: E402  (scripts/climb.py)
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    defaults = ["--ladder", "default", "--robot", "g1", "--rungs", "2", "--mode", "qp",
-                "--out", str(ROOT / "out" / "demo"), "--snapshots", "8"]
+    defaults = ["--scenario", "default", "--robot", "g1", "--rungs", "2", "--mode", "qp",
+                "--out", str(ROOT / "out" / "demo"), "--snapshots", "8", "--graph", "processes"]
     return climb.main(defaults + argv)  # later options override the defaults
 
 
