@@ -16,6 +16,6 @@ setup(
     description="Climb orchestration: plan, execute in the simulator, record.",
     license="Apache-2.0",
     entry_points={"console_scripts": ["sim_graph = climb_coordinator.sim_graph:main",
-                                        "recorder = climb_coordinator.recorder_node:main",
-                                        "climb_coordinator = climb_coordinator.coordinator_node:main"]},
+                                        "recorder = climb_coordinator.entry:recorder",
+                                        "climb_coordinator = climb_coordinator.entry:coordinator"]},
 )
