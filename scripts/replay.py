@@ -95,6 +95,28 @@ def _wait_graph(node, seconds: float) -> None:
         rclpy.spin_once(node, timeout_sec=0.05)
 
 
+def wait_until_active(node, name: str, proc: subprocess.Popen, timeout_s: float) -> None:
+    """Poll <name>/get_state until the lifecycle node says active; RuntimeError on timeout or death."""
+    import rclpy
+    from lifecycle_msgs.msg import State
+    from lifecycle_msgs.srv import GetState
+
+    client = node.create_client(GetState, f"{name}/get_state")
+    deadline = time.monotonic() + timeout_s
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            if client.wait_for_service(timeout_sec=0.2):
+                future = client.call_async(GetState.Request())
+                rclpy.spin_until_future_complete(node, future, timeout_sec=2.0)
+                result = future.result() if future.done() else None
+                if result is not None and result.current_state.id == State.PRIMARY_STATE_ACTIVE:
+                    return
+            rclpy.spin_once(node, timeout_sec=0.1)
+    finally:
+        node.destroy_client(client)
+    raise RuntimeError(f"the {name} did not become active within {timeout_s:.0f} s")
+
+
 def live_robot_nodes(node, namespace: str | None) -> list[str]:
     """Full names of the live sim_bridge / controller / sim_graph nodes in the namespace the replay
     publishes into, and of every node of that kind subscribing to an actuation topic there."""
@@ -524,6 +546,9 @@ def reexecute(args) -> int:
             rclpy.spin_once(node, timeout_sec=0.05)
             if procs["controller"].poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError("the controller did not come up")
+        if not late:  # autostart: the controller must be active before the bridge's first state,
+            # or it drops that state (an inactive lifecycle node ignores it) and the bridge damps t = 0
+            wait_until_active(node, "controller", procs["controller"], 60.0)
         _wait_graph(node, 0.5)
         pubs["gripper"] = node.create_publisher(GripperCommand, "gripper_command", QoSProfile(depth=10))
         pubs["cmd"] = node.create_publisher(JointCommand, "joint_command", QoSProfile(depth=10))

@@ -307,6 +307,9 @@ class ControllerNode(LifecycleNode):
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._reset_pending = True
+        # a reset simulator restarts its time at 0: the states of the new world are newer than
+        # anything this activation has seen, whatever the previous activation ticked last
+        self._last_stamp = -1
         self.active = True
         self._received_at = time.perf_counter()
         self._watchdog = self.create_timer(1.0, guarded(self, self._check_silence, "watchdog"))

@@ -330,10 +330,15 @@ class SimBridgeNode(Node):
 
     def wait_for_controller(self, executor: Executor) -> bool:
         """Lock-step start: wait until a controller is connected (VOLATILE topics drop what is
-        published before the match), at most lockstep.startup_wait_s of wall time."""
+        published before the match), at most lockstep.startup_wait_s of wall time. Connected: a
+        joint_command publisher, and a subscriber on every state topic the controller ticks on
+        (joint_states, base truth, each F/T sensor): each matches on its own, and a state of t
+        missing one of them is a tick the controller never answers."""
         deadline = time.monotonic() + self.params.lockstep.startup_wait_s
+        state_pubs = [self.pub_joints, self.pub_truth, *self.pub_ft.values()]
         while node_kit.running() and time.monotonic() < deadline:
-            if self.count_publishers("joint_command") > 0 and self.pub_joints.get_subscription_count() > 0:
+            if (self.count_publishers("joint_command") > 0
+                    and all(pub.get_subscription_count() > 0 for pub in state_pubs)):
                 executor.spin_once(timeout_sec=0.2)  # let the matching settle on both sides
                 return True
             executor.spin_once(timeout_sec=0.05)
