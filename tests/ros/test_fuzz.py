@@ -14,7 +14,7 @@ import json
 import sys
 
 import pytest
-from harness import ROOT
+from harness import PARAMS, ROOT, Client, NodeProcess
 
 pytestmark = pytest.mark.ros
 
@@ -28,10 +28,7 @@ BUDGET_S = 90.0  # [s] of fuzzing, spread over every input of every node
 
 #: failures of other helpers' nodes at the time of writing (xfail, not strict: an XPASS says the
 #: owner fixed it); the lead removes them once fixed
-KNOWN_GAPS = {
-    "climb_coordinator": "garbage on its subscriptions is neither reported on diagnostics nor answered "
-                         "(owner: climb_coordinator)",
-}
+KNOWN_GAPS: dict[str, str] = {}
 
 
 def _params(entries):
@@ -61,3 +58,58 @@ def test_node_survives_fuzzing_and_keeps_serving(figures, entry):
         assert f["messages"] > 0 and f["garbage"] > 0, json.dumps(f)
         if entry.garbage_is_bad:
             assert f["reports"] > 0, f"{entry.executable} never reported the garbage on diagnostics"
+
+
+#: raw bytes that are no message of any type: random, a CDR header with a lying sequence length, empty
+GARBAGE_BYTES = (bytes(range(7, 250, 3)), b"\x00\x01\x00\x00" + b"\xff\xff\xff\x7f" + bytes(40), b"")
+
+
+def test_coordinator_reports_garbage_on_every_input_and_keeps_serving():
+    """climb_coordinator alone: garbage bytes on each topic it subscribes to are reported on
+    ``diagnostics`` (``climb_coordinator/input``, the topic named), the node stays alive, its
+    ``climb`` service still answers (a bad request refused with its reason) and SIGINT exits 0."""
+    from climb_msgs.srv import Climb
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rcl_interfaces.srv import ListParameters
+
+    node = "climb_coordinator"
+    proc = NodeProcess([sys.executable, "-c", "import sys; from climb_coordinator.entry import coordinator; "
+                        "sys.exit(coordinator())", "--ros-args", "--params-file",
+                        str(PARAMS / "climb_coordinator.yaml")], name=node)
+    client = Client("coordinator_garbage_test")
+    try:
+        diagnostics = client.subscribe(DiagnosticArray, "diagnostics", depth=200)
+        assert client.wait_service(ListParameters, f"{node}/list_parameters", 180.0), proc.tail()
+
+        def subscriptions() -> dict[str, str]:
+            try:
+                return {t: types[0] for t, types in client.node.get_subscriber_names_and_types_by_node(node, "/")}
+            except Exception:  # noqa: BLE001 - NodeNameNonExistentError: not discovered yet
+                return {}
+
+        expected = {"/controller/state", "/sim/contacts", "/whole_body_plan", "/guide_path/status",
+                    "/contact_search/status", "/primitive_adaptation/status"}
+        assert client.spin_until(lambda: expected <= set(subscriptions()), 30.0, [proc]), sorted(subscriptions())
+        subs = subscriptions()
+
+        def reported(topic: str) -> bool:
+            return any(s.name == f"{node}/input" and any(kv.key == "topic" and kv.value == topic for kv in s.values)
+                       for d in diagnostics for s in d.status)
+
+        for topic in sorted(expected):
+            cls = fuzz_nodes._message_class(subs[topic])
+            name = topic.lstrip("/")
+            assert client.wait_matched(cls, name, 30.0, [proc]), topic
+            for data in GARBAGE_BYTES:  # one at a time: whole_body_plan keeps only the newest
+                client.publish(cls, name, data)
+                client.spin(0.2)
+            assert client.spin_until(lambda: reported(name), 15.0, [proc]), f"no report of garbage on {topic}"
+
+        response = client.call(Climb, "climb", Climb.Request(robot="banana", scenario="default", rungs=1), 60.0)
+        assert response is not None and not response.accepted and "unknown robot" in response.error, response
+        assert proc.alive(), proc.tail()
+    finally:
+        client.close()
+        code = proc.stop()
+        proc.close()
+    assert code == 0, proc.tail()

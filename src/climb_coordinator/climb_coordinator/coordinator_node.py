@@ -31,17 +31,21 @@ A climb (climb_coordinator.session.ClimbSession with the ROS adapters below):
 from __future__ import annotations
 
 import json
+import math
+import re
 import threading
 import time
 import uuid
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from climb_core.errors import ClimbError, SpecError
+from climb_core.params import param
 
-from .session import (ClimbRequest, ClimbSession, ExecStatus, PlanOutcome, check_request, controller_overrides,
-                      ladder_name)
+from .session import (MAX_FORCED_REPLANS, ClimbRequest, ClimbSession, ExecStatus, PlanOutcome, check_request,
+                      controller_overrides, ladder_name)
 
 NODE_NAME = "climb_coordinator"
 PLAN_STAGES = ("guide_path", "contact_search", "primitive_adaptation")
@@ -50,6 +54,76 @@ PLAN_PHASES = {"guide_path": "guide_path", "contact_search": "contact_search", "
 PLANNING = ("guide_path", "contact_search", "adaptation", "replanning")
 #: lifecycle transition ids (lifecycle_msgs/msg/Transition)
 CONFIGURE, CLEANUP, ACTIVATE, DEACTIVATE = 1, 2, 3, 4
+
+
+#: bad messages reported on diagnostics per input topic and second (the others are counted)
+INPUT_REPORTS_PER_S = 5
+
+
+@dataclass(frozen=True)
+class CoordinatorParams:
+    """The node's parameters (config/nodes/climb_coordinator.yaml holds the same defaults; regenerate it
+    with climb_core.params.to_yaml(CoordinatorParams(), "climb_coordinator")). :data:`READ_ONLY` ones
+    are read at start-up; the others apply from the next climb (or the next wait) on."""
+
+    robot: str = param("g1", unit="-", description=(
+        "robot of a climb request that names none (a robot of config/robots/)"))
+    heartbeat_timeout_s: float = param(1.0, unit="s", min=0.05, max=60.0, description=(
+        "wall time without controller/state, while sim/contacts goes on, after which the controller is "
+        "declared dead (5 times as long, and at least 5 s, with both silent: the bridge)"))
+    service_timeout_s: float = param(30.0, unit="s", min=0.1, max=3600.0, description=(
+        "wall time one service call of a climb may take (the controller's lifecycle and parameters, "
+        "sim/reset), waiting for the service included"))
+    plan_wait_margin_s: float = param(300.0, unit="s", min=0.0, max=86400.0, description=(
+        "wall time beyond the planning timeout allowed to the whole pipeline for one plan (a loaded machine)"))
+    markers_period_s: float = param(1.0, unit="s", min=0.05, max=60.0, description=(
+        "wall period of climb/markers (read at start-up)"))
+    max_forced_replans: int = param(MAX_FORCED_REPLANS, unit="-", min=0, max=100, description=(
+        "replans from the measured state per climb after the controller asks for one (replan_needed)"))
+    controller: str = param("controller", unit="-", description=(
+        "name of the controller lifecycle node (read at start-up)"))
+    bridge: str = param("sim_bridge", unit="-", description="name of the sim_bridge node (read at start-up)")
+    bag: str = param("", unit="-", description="path of the graph's bag, reported in the summary (empty: none)")
+    reset_sim: bool = param(True, unit="-", description="call sim/reset at the start of each climb (simulation)")
+
+
+#: parameters the node reads once at start-up (clients, timer): refused at run time
+READ_ONLY = ("markers_period_s", "controller", "bridge")
+_NODE_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+def check_params(p: CoordinatorParams) -> CoordinatorParams:
+    """The rules the schema cannot say: a known robot, node names ROS accepts. SpecError naming
+    ``climb_coordinator.<parameter>`` and the rule."""
+    from climb_core.robot import available_robots
+
+    known = available_robots()
+    if p.robot not in known:
+        raise SpecError(f"{NODE_NAME}.robot", f"unknown robot {p.robot!r} (known: {', '.join(known)})")
+    for name in ("controller", "bridge"):
+        value = getattr(p, name)
+        if not _NODE_NAME_RE.match(value):
+            raise SpecError(f"{NODE_NAME}.{name}", f"must be a ROS node name (letters, digits, _ and /, "
+                                                   f"not starting with a digit), got {value!r}")
+    return p
+
+
+def check_controller_state(msg: Any) -> None:
+    """A controller/state the coordinator can use (SpecError naming the field otherwise)."""
+    if not math.isfinite(msg.tick_time_ms):  # the summary's control_tick_ms figures
+        raise SpecError("controller/state.tick_time_ms", "must be finite")
+
+
+def check_contacts(msg: Any) -> None:
+    """A sim/contacts the judge can read: one entry per limb in every array, finite forces."""
+    n = len(msg.limbs)
+    for name in ("normal_force", "tangential_force", "surface", "rung", "grasped"):
+        size = len(getattr(msg, name))
+        if size != n:
+            raise SpecError(f"sim/contacts.{name}", f"must have one entry per limb ({n}), has {size}")
+    for name in ("normal_force", "tangential_force"):
+        if not all(math.isfinite(v) for v in getattr(msg, name)):
+            raise SpecError(f"sim/contacts.{name}", "must be finite")
 
 
 def scenario_source(scenario: str) -> tuple[str, str]:
@@ -80,13 +154,14 @@ def scenario_source(scenario: str) -> tuple[str, str]:
     return name, scenario
 
 
-def request_from_msg(msg: Any, default_robot: str) -> ClimbRequest:
+def request_from_msg(msg: Any, default_robot: str, max_forced_replans: int = MAX_FORCED_REPLANS) -> ClimbRequest:
     """A ClimbRequest from a srv/Climb request or an action goal (same fields)."""
     scenario = msg.scenario or msg.ladder or "default"
     return ClimbRequest(ladder=scenario, robot=msg.robot or default_robot, rungs=int(msg.rungs),
                         mode=msg.controller_mode or "qp", seed=int(msg.seed), bag=False,
                         plan_timeout_s=float(msg.planning_timeout_s) or None, descend=bool(msg.descend),
-                        plan_cycles=int(msg.plan_cycles) or None, command_delay_ticks=int(msg.command_delay_ticks))
+                        plan_cycles=int(msg.plan_cycles) or None, command_delay_ticks=int(msg.command_delay_ticks),
+                        max_forced_replans=max_forced_replans)
 
 
 def main(args: list[str] | None = None) -> int:
@@ -105,6 +180,7 @@ def _make_node():
     from climb_msgs.action import Climb as ClimbAction
     from climb_msgs.msg import ClimbStatus, ControllerState, SimContacts, WholeBodyPlan
     from climb_msgs.srv import Cancel, Climb, SimReset
+    from diagnostic_msgs.msg import DiagnosticArray
     from lifecycle_msgs.srv import ChangeState, GetState
     from rcl_interfaces.msg import Parameter as ParameterMsg
     from rcl_interfaces.srv import GetParameters, SetParameters
@@ -112,13 +188,13 @@ def _make_node():
     from rclpy.callback_groups import ReentrantCallbackGroup
     from rclpy.node import Node
     from rclpy.parameter import Parameter
-    from rclpy.serialization import deserialize_message
     from std_msgs.msg import String
     from std_srvs.srv import Trigger
     from visualization_msgs.msg import MarkerArray
 
     from msgs_py import cdr
-    from msgs_py.node_kit import Worker, guarded, safe_publish
+    from msgs_py.node_kit import (Worker, declare_from_schema, decode, diagnose, guarded, safe_publish,
+                                  set_diagnostics_publisher)
     from msgs_py.stamps import make_header
     from msgs_py.topics import qos_for
 
@@ -148,23 +224,18 @@ def _make_node():
             super().__init__(NODE_NAME)
             self.group = ReentrantCallbackGroup()
             g = self.group
-            self.declare_parameter("robot", "g1")  # default robot of a request without one
-            self.declare_parameter("heartbeat_timeout_s", 1.0)  # [s] wall time without controller/state = dead node
-            self.declare_parameter("service_timeout_s", 30.0)  # [s] wall time for one service call of the run
-            self.declare_parameter("plan_wait_margin_s", 300.0)  # [s] beyond the planning timeout for the whole pipeline (a loaded machine)
-            self.declare_parameter("markers_period_s", 1.0)  # [s] wall period of climb/markers
-            self.declare_parameter("max_forced_replans", 2)  # [-] replans after replan_needed per climb
-            self.declare_parameter("controller", "controller")  # controller lifecycle node name
-            self.declare_parameter("bridge", "sim_bridge")  # bridge node name
-            self.declare_parameter("bag", "")  # path of the graph's bag (reported in the summary)
-            self.declare_parameter("reset_sim", True)  # sim/reset at each climb (simulation)
+            # descriptors from the schema; a set_parameters is checked by the schema (type, range)
+            # and check_params (known robot, node names) and refused with the reason; READ_ONLY
+            # ones are refused at run time (rclpy)
+            self.params: CoordinatorParams = check_params(declare_from_schema(
+                self, CoordinatorParams, read_only=READ_ONLY, on_change=self._on_params))
             self.cs = load_climb_settings()
             self.worker = Worker(self, "climb")
             self.run: ClimbRun | None = None
             self._lock = threading.Lock()
             self._cond = threading.Condition()
             # latest inputs
-            self.state_bytes: bytes | None = None
+            self.state: Any = None  # the newest good controller/state (ControllerState)
             self.state_at = 0.0  # [s] monotonic arrival of the newest controller/state
             self.state_count = 0
             self.contacts: Any = None
@@ -179,23 +250,22 @@ def _make_node():
             self.pub_plan_request = self.create_publisher(String, "plan/request", qos_for("plan/request"))
             self.pub_markers = self.create_publisher(MarkerArray, "climb/markers", qos_for("climb/markers"))
             self.pub_description = self.create_publisher(String, "robot_description", qos_for("robot_description"))
-            self.create_subscription(ControllerState, "controller/state", guarded(self, self._on_state, "state"),
-                                     qos_for("controller/state"), raw=True, callback_group=g)
-            self.create_subscription(SimContacts, "sim/contacts", guarded(self, self._on_contacts, "contacts"),
-                                     qos_for("sim/contacts"), callback_group=g)
-            self.create_subscription(WholeBodyPlan, "whole_body_plan", guarded(self, self._on_plan, "whole_body_plan"),
-                                     qos_for("whole_body_plan"), callback_group=g)
+            set_diagnostics_publisher(self, self.create_publisher(DiagnosticArray, "diagnostics",
+                                                                  qos_for("diagnostics")))
+            self._input_reports: dict[str, list] = {}  # topic -> [window start, reported, unreported]
+            self._reports_lock = threading.Lock()
+            # every subscription raw: bytes that do not decode, or a message that cannot be used,
+            # are dropped and reported on diagnostics (_reject_input), never fatal
+            self._subscribe(ControllerState, "controller/state", self._on_state, check_controller_state)
+            self._subscribe(SimContacts, "sim/contacts", self._on_contacts, check_contacts)
+            self._subscribe(WholeBodyPlan, "whole_body_plan", self._on_plan)
             for stage in PLAN_STAGES:
-                topic = f"{stage}/status"
-                self.create_subscription(ClimbStatus, topic,
-                                         guarded(self, lambda m, s=stage: self._on_stage(s, m), topic),
-                                         qos_for(topic), callback_group=g)
+                self._subscribe(ClimbStatus, f"{stage}/status", lambda m, s=stage: self._on_stage(s, m))
             self.create_service(Climb, "climb", guarded(self, self._on_climb, "climb"), callback_group=g)
             self.create_service(Cancel, "climb/cancel", guarded(self, self._on_cancel, "cancel"), callback_group=g)
             self.action = ActionServer(self, ClimbAction, "climb", self._execute, callback_group=g,
                                        goal_callback=self._on_goal, cancel_callback=lambda h: CancelResponse.ACCEPT)
-            ctl = self.get_parameter("controller").value
-            bridge = self.get_parameter("bridge").value
+            ctl, bridge = self.params.controller, self.params.bridge
             self.cli_change = self.create_client(ChangeState, f"{ctl}/change_state", callback_group=g)
             self.cli_get = self.create_client(GetState, f"{ctl}/get_state", callback_group=g)
             self.cli_set = self.create_client(SetParameters, f"{ctl}/set_parameters", callback_group=g)
@@ -207,19 +277,60 @@ def _make_node():
                            "Trigger": Trigger, "SimReset": SimReset, "GetParameters": GetParameters}
             self._marker_scene = None
             self._make_measured_node()
-            self.create_timer(float(self.get_parameter("markers_period_s").value),
-                              guarded(self, self._publish_markers, "markers"), callback_group=g)
+            self.create_timer(self.params.markers_period_s, guarded(self, self._publish_markers, "markers"),
+                              callback_group=g)
             try:  # the rung check's primitive library, loaded once now (requests are checked at once)
-                check_request(ClimbRequest(robot=self.get_parameter("robot").value, rungs=1))
+                check_request(ClimbRequest(robot=self.params.robot, rungs=1))
             except ClimbError as exc:
                 self.get_logger().warning(f"default request does not check: {exc}")
             self.status("idle", "ready", climb_id="")
             self.get_logger().info("climb_coordinator ready: service and action `climb`")
 
+        def _on_params(self, params: CoordinatorParams) -> None:
+            """A validated change (declare_from_schema's on_change): SpecError refuses it."""
+            self.params = check_params(params)
+
         # ------------------------------------------------------------------ inputs
-        def _on_state(self, data: bytes) -> None:
+        def _subscribe(self, cls, topic: str, handle, check=None) -> None:
+            """A raw subscription of ``topic``: ``handle(msg)`` for each message that decodes as
+            ``cls`` and passes ``check(msg)`` (SpecError otherwise); the others are rejected."""
+
+            def received(data: bytes) -> None:
+                try:
+                    msg = decode(data, cls)
+                    if check is not None:
+                        check(msg)
+                except ValueError as err:  # undecodable (node_kit.decode) or SpecError
+                    self._reject_input(topic, err)
+                    return
+                handle(msg)
+
+            self.create_subscription(cls, topic, guarded(self, received, topic), qos_for(topic), raw=True,
+                                     callback_group=self.group)
+
+        def _reject_input(self, topic: str, err: Exception, level: int = 2) -> None:
+            """A bad message: dropped (the last good one stays) and reported on diagnostics as
+            ``climb_coordinator/input``, at most INPUT_REPORTS_PER_S per topic and second (the
+            others are counted in the next report)."""
+            now = time.monotonic()
+            with self._reports_lock:
+                window = self._input_reports.setdefault(topic, [now, 0, 0])
+                if now - window[0] >= 1.0:
+                    window[0], window[1] = now, 0
+                if window[1] >= INPUT_REPORTS_PER_S:
+                    window[2] += 1
+                    return
+                window[1] += 1
+                unreported, window[2] = window[2], 0
+            text = f"dropped {topic}: {err}"
+            self.get_logger().warning(text)
+            diagnose(self, f"{NODE_NAME}/input", text, level=level,
+                     values={"topic": topic, "field": getattr(err, "field", topic), "error": type(err).__name__,
+                             "dropped_unreported": unreported})
+
+        def _on_state(self, msg) -> None:
             with self._cond:
-                self.state_bytes = data
+                self.state = msg
                 self.state_at = time.monotonic()
                 self.state_count += 1
                 self._cond.notify_all()
@@ -243,12 +354,21 @@ def _make_node():
             self._measured: dict[str, bytes] = {}
             self._measured_count = {"joint_states": 0, "sim/base_truth": 0}
             for topic, kind in (("joint_states", JointState), ("sim/base_truth", Odometry)):
-                self._measured_node.create_subscription(kind, topic, lambda d, t=topic: self._on_measured(t, d),
-                                                        qos_for(topic), raw=True)
+                self._measured_node.create_subscription(
+                    kind, topic, guarded(self, lambda d, t=topic: self._on_measured(t, d), topic), qos_for(topic),
+                    raw=True)
             self._measured_exec = SingleThreadedExecutor(context=self.context)
             self._measured_exec.add_node(self._measured_node)
 
         def _on_measured(self, topic: str, data: bytes) -> None:
+            try:  # read as the climb reads it (measured_q): bad bytes never replace a good state
+                if topic == "joint_states":
+                    self._js_reader.read(data)
+                else:
+                    cdr.read_odometry(data)
+            except ValueError as err:  # cdr.CdrError
+                self._reject_input(topic, err)
+                return
             self._measured[topic] = data
             self._measured_count[topic] += 1
 
@@ -274,17 +394,30 @@ def _make_node():
                 if time.monotonic() > deadline:
                     raise ClimbError(f"no {topic} within {timeout:.1f} s (is the sim_bridge running?)")
 
+        def _ours(self, request_id: str) -> bool:
+            """A plan request id of the running climb (``<climb id>-<attempt>``): products and
+            statuses of other requests are not kept."""
+            run = self.run
+            return run is not None and not run.done.is_set() and request_id.startswith(run.id + "-")
+
         def _on_plan(self, msg) -> None:
+            if not self._ours(msg.request_id):  # the controller may take it: worth a warning
+                self._reject_input("whole_body_plan", SpecError(
+                    "whole_body_plan.request_id", f"{msg.request_id!r} is no plan request of the running climb"),
+                    level=1)
+                return
             with self._cond:
                 self.plans[msg.request_id] = msg
                 self._cond.notify_all()
 
         def _on_stage(self, stage: str, msg) -> None:
+            if not self._ours(msg.id):
+                return
             with self._cond:
                 self.stage_status.setdefault(msg.id, {})[stage] = (msg.phase, msg.text, time.monotonic())
                 self._cond.notify_all()
             run = self.run
-            if run is not None and msg.id.startswith(run.id) and not run.done.is_set():
+            if run is not None:
                 run.stage = stage
                 if msg.phase not in ("done", "failed") and run.phase in PLANNING:
                     phase = "replanning" if run.phase == "replanning" else PLAN_PHASES[stage]
@@ -292,8 +425,8 @@ def _make_node():
                                 progress=msg.progress)
 
         def controller_state(self):
-            data = self.state_bytes
-            return None if data is None else deserialize_message(data, ControllerState)
+            """The newest good controller/state (None before the first one)."""
+            return self.state
 
         # ------------------------------------------------------------------ status
         def status(self, phase: str, text: str = "", climb_id: str | None = None, step: int = 0, n: int = 0,
@@ -347,7 +480,7 @@ def _make_node():
             return True, climb_id, ""
 
         def _on_climb(self, request, response):
-            req = request_from_msg(request, self.get_parameter("robot").value)
+            req = request_from_msg(request, self.params.robot, self.params.max_forced_replans)
             ok, cid, error = self.start_climb(req)
             response.accepted, response.id, response.error = ok, cid, error
             if not ok:
@@ -371,7 +504,7 @@ def _make_node():
 
         def _execute(self, goal_handle):
             goal = goal_handle.request
-            req = request_from_msg(goal, self.get_parameter("robot").value)
+            req = request_from_msg(goal, self.params.robot, self.params.max_forced_replans)
             ok, cid, error = self.start_climb(req)
             result = ClimbAction.Result()
             if not ok:
@@ -409,7 +542,7 @@ def _make_node():
 
         # ------------------------------------------------------------------ service calls
         def call(self, client, request, timeout: float | None = None):
-            timeout = float(self.get_parameter("service_timeout_s").value) if timeout is None else timeout
+            timeout = self.params.service_timeout_s if timeout is None else timeout
             name = client.srv_name
             if not client.wait_for_service(timeout_sec=timeout):  # a node still starting: its time
                 raise ClimbError(f"service {name} is not available (within {timeout:.0f} s)")
@@ -470,7 +603,7 @@ def _make_node():
                 full = base_summary(req)
                 full.update(summary)
                 full["id"] = run.id
-                full["bag"] = full.get("bag") or str(self.get_parameter("bag").value)
+                full["bag"] = full.get("bag") or self.params.bag
                 run.summary = full
                 phase = "cancelled" if full.get("cancelled") else ("done" if full.get("success") else "failed")
                 self.status(phase, json.dumps(full), progress=1.0 if full.get("success") else 0.0)
@@ -499,7 +632,7 @@ def _make_node():
             self._prepare_controller(overrides)
             if run.cancel.is_set():
                 raise Cancelled()
-            if self.get_parameter("reset_sim").value:
+            if self.params.reset_sim:
                 self.drain_measured()
                 res = self.call(self.cli_reset, self._types["SimReset"].Request(
                     robot=req.robot, ladder=text, initial_posture=fixture, seed=int(req.seed or 0)))
@@ -554,7 +687,7 @@ def _make_node():
             self.change(CONFIGURE, "configure")
 
         def _wait_heartbeat(self, count0: int, run: ClimbRun) -> None:
-            timeout = max(5.0, 4 * float(self.get_parameter("heartbeat_timeout_s").value))
+            timeout = max(5.0, 4 * self.params.heartbeat_timeout_s)
             deadline = time.monotonic() + timeout
             with self._cond:
                 while self.state_count <= count0:
@@ -652,7 +785,7 @@ def _make_node():
             from planner_node.settings import load_settings
 
             limit = (req.plan_timeout_s or load_settings().planning.timeout_s) \
-                + float(node.get_parameter("plan_wait_margin_s").value)
+                + node.params.plan_wait_margin_s
             deadline = t0 + limit
             failure = ""
             msg = None
@@ -742,7 +875,7 @@ def _make_node():
 
         def _wait(self, done, budget_s: float | None) -> ExecStatus:
             node, run = self.node, self.climb
-            dead_after = float(node.get_parameter("heartbeat_timeout_s").value)
+            dead_after = node.params.heartbeat_timeout_s
             seen = node.state_count
             suspect = None  # [s] when the controller first looked dead
             while True:
