@@ -2,8 +2,10 @@
 climb_coordinator.graph as scripts/climb.py does), lock-step, G1.
 
 One graph per climb (a class-scoped fixture; the graph stops when its class is done):
-- 3 rungs in QP mode through the `climb` action (bad requests refused at once before it, a second
-  request refused while it runs);
+- 3 rungs in QP mode through the `climb` action, with a one-period actuation latency (the bridge's
+  lockstep.command_delay_ticks = 1 and the request's command_delay_ticks = 1: the physics of a tick
+  runs while the controller computes the next, as on hardware, and the lock-step runs ~2x faster on
+  2 cores); bad requests refused at once before it, a second request refused while it runs;
 - 2 rungs in compliance mode through the `climb` service, followed on climb/status;
 - a forced replan (rung 4 moved by sim/perturb under a plan made for the nominal ladder: the
   hand's guarded search finds nothing, the FSM reports replan_needed, the coordinator replans from
@@ -253,11 +255,12 @@ class TestQpClimbThroughTheAction:
     @pytest.fixture(scope="class")
     def run(self, tmp_path_factory):
         out = tmp_path_factory.mktemp("graph_qp")
-        with Graph(out, recorder=True) as g:
+        with Graph(out, recorder=True, extra={"sim_bridge": {"lockstep.command_delay_ticks": 1}}) as g:
             c = g.client
             refusals = {case: c.climb_service(**kw) for case, (kw, _) in BAD_REQUESTS.items()}
             t0 = time.monotonic()
-            handle = c.send_goal(rungs=3, controller_mode="qp", scenario="default", robot="g1")
+            handle = c.send_goal(rungs=3, controller_mode="qp", scenario="default", robot="g1",
+                                 command_delay_ticks=1)
             c.wait_for(c.executing_since(1.0, t0), 900.0, "the controller executing the plan", running_since=t0)
             busy = c.climb_service(rungs=1)
             result = c.result(handle)
@@ -283,6 +286,7 @@ class TestQpClimbThroughTheAction:
         # the typed result agrees with the summary
         assert r.success and not r.cancelled and r.rungs_reached == 3 and r.rungs_requested == 3
         assert r.mode == "qp" == s["mode"] and r.fell is False and r.replans == 0
+        assert s["command_delay_ticks"] == 1
         assert r.n_stances == s["n_stances"] > 20 and r.sim_time_s == pytest.approx(s["sim_time_s"])
         assert set(s["plan_stages_s"]) == {"guide_path", "contact_search", "primitive_adaptation"}
         # feedback went through the phases with stance k of n

@@ -12,6 +12,8 @@ import pytest
 
 
 pytestmark = pytest.mark.sim
+#: make test spreads these climbs over both cores (tests/conftest.py)
+XDIST_SPREAD = True
 
 RUNGS = 2
 TOPICS = {"joint_states", "sim/base_truth", "joint_command", "controller/state",

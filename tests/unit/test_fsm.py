@@ -166,3 +166,27 @@ def test_search_gives_up_and_asks_for_replanning_without_contact(ladder):
             break
     assert out.status.fsm_state == "replan_needed" and out.status.replan_needed
     assert "right_hand" not in controller.contacts  # never added without a contact
+
+
+def test_a_state_that_cannot_start_leaves_the_fsm_holding(ladder, monkeypatch):
+    """A transition the controller cannot start (here start_path raising, as a malformed plan's
+    did under fuzzing) is reported to the caller once, and the FSM holds the active contacts
+    instead of running the half-started state on the next ticks."""
+    robot, env, stance, q, transition = ladder
+    controller = Controller(robot, load_controller_params(**{"collision.enabled": False}), env)
+    loop = KinematicLoop(controller, q)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    controller.set_plan(plan_of(robot, env, stance, [transition]))
+
+    def broken(*args, **kwargs):
+        raise ValueError("cannot follow this path")
+
+    monkeypatch.setattr(controller, "start_path", broken)
+    with pytest.raises(ValueError):
+        for _ in range(1400):
+            loop.step()
+    assert controller.fsm.current.name == "hold"
+    assert controller.fsm.history[-1][1:] == ("transfer", "hold", "hold")
+    for _ in range(20):  # and it keeps ticking, holding
+        out = loop.step()
+        assert out.status.fsm_state == "hold"

@@ -400,7 +400,20 @@ class Fsm:
         self.current.teardown(ctx)
         self.current = self.states[target]
         self.current.started_at = ctx.time
-        self.current.start(ctx)
+        try:
+            self.current.start(ctx)
+        except Exception:
+            # a state that cannot start (a transition of the plan it cannot execute) is not left
+            # half set up for the next tick: the FSM holds the active contacts, then the error
+            # goes on to the caller (reported there)
+            failed = self.current.name
+            hold = self.table.next_state(failed, "hold", ctx.moving_limb)
+            if hold is not None and hold != failed:
+                self.history.append((ctx.time, failed, "hold", hold))
+                self.current = self.states[hold]
+                self.current.started_at = ctx.time
+                self.current.start(ctx)
+            raise
         return True
 
     def step(self, ctx: Context) -> None:
