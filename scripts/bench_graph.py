@@ -42,7 +42,8 @@ def run_graph(layout: str, args, out: pathlib.Path) -> dict:
     from climb_coordinator.graph import GraphProcesses, load_graph
     from msgs_py.topics import qos_for
 
-    extra = {"sim_graph": {"autostart": False}}
+    delay = {"lockstep.command_delay_ticks": args.command_delay}
+    extra = {"sim_graph": {"autostart": False, **delay}, "sim_bridge": delay}
     graph = GraphProcesses(load_graph().layout(layout, with_optional=False), extra, log_dir=out / layout / "logs")
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
@@ -83,6 +84,7 @@ def run_graph(layout: str, args, out: pathlib.Path) -> dict:
         t_up = time.monotonic()
         say(f"[{layout}] graph up in {t_up - t_start:.1f} s; climbing {args.rungs} rung(s) in {args.mode} mode")
         goal = ClimbAction.Goal(robot="g1", scenario=args.scenario, rungs=args.rungs, controller_mode=args.mode,
+                                command_delay_ticks=args.command_delay,
                                 seed=args.seed)
         handle = wait(client.send_goal_async(goal), 60.0)
         t_accepted = time.monotonic()
@@ -133,7 +135,8 @@ def run_inprocess(plan_msg, args) -> dict:
         def plan(self, steps, start=None):
             return PlanOutcome(True, plan, 0.0, 1 + len(plan.transitions))
 
-    req = ClimbRequest(ladder=args.scenario, robot="g1", rungs=args.rungs, mode=args.mode, bag=False, seed=args.seed)
+    req = ClimbRequest(ladder=args.scenario, robot="g1", rungs=args.rungs, mode=args.mode, bag=False, seed=args.seed,
+                       command_delay_ticks=args.command_delay)
     cs = load_climb_settings()
     p = load_settings().planning
     fixture = load_library("g1", p.strategy, p.primitives_dir).initial_fixture
@@ -154,12 +157,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenario", default="default")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--layouts", default="processes,composed")
+    ap.add_argument("--command-delay", type=int, default=0, choices=(0, 1),
+                    help="1: one-period actuation latency (the bridge's physics runs while the controller computes)")
     ap.add_argument("--timeout", type=float, default=1500.0, help="[s] wall per graph climb")
     ap.add_argument("--out", default=str(ROOT / "out" / "bench_graph"))
     args = ap.parse_args(argv)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    results: dict = {"rungs": args.rungs, "mode": args.mode, "scenario": args.scenario}
+    results: dict = {"rungs": args.rungs, "mode": args.mode, "scenario": args.scenario,
+                     "command_delay_ticks": args.command_delay}
     plan_msg = None
     for layout in [x.strip() for x in args.layouts.split(",") if x.strip()]:
         r = run_graph(layout, args, out)
