@@ -52,11 +52,18 @@ def env():
 
 def pytest_collection_modifyitems(config, items):
     """Under xdist (`make test`, --dist loadgroup), a module's tests stay on one worker, so that
-    its module-scoped fixtures (models, plans, recorded runs) are built once; a module that sets
-    ``XDIST_SPREAD = True`` (independent, long tests such as whole climbs) is spread over both."""
+    its module-scoped fixtures (models, plans, recorded runs, graphs) are built once. A module may
+    say otherwise with ``XDIST_SPREAD``: ``True`` spreads its tests over the workers (independent,
+    long tests such as whole climbs), ``"class"`` keeps each class together (class-scoped
+    fixtures: one graph per class) and spreads the classes."""
     for item in items:
         module = getattr(item, "module", None)
-        if module is None or getattr(module, "XDIST_SPREAD", False):
+        if module is None or any(m.name == "xdist_group" for m in item.iter_markers()):
             continue
-        if not any(m.name == "xdist_group" for m in item.iter_markers()):
-            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
+        spread = getattr(module, "XDIST_SPREAD", False)
+        if spread is True:
+            continue
+        group = item.nodeid.split("::")[0]
+        if spread == "class" and item.cls is not None:
+            group += "::" + item.cls.__name__
+        item.add_marker(pytest.mark.xdist_group(group))

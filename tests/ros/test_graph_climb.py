@@ -32,6 +32,8 @@ import time
 import pytest
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(3000)]  # a class's graph climb runs in its first test
+#: make test runs the classes (one graph each) on both workers (tests/conftest.py)
+XDIST_SPREAD = "class"
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 CLIMB_TIMEOUT_S = 1500.0  # [s] wall: a 3-rung climb is ~130 s of sim time (slow on a loaded machine)

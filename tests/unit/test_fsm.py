@@ -190,3 +190,27 @@ def test_a_state_that_cannot_start_leaves_the_fsm_holding(ladder, monkeypatch):
     for _ in range(20):  # and it keeps ticking, holding
         out = loop.step()
         assert out.status.fsm_state == "hold"
+
+
+def test_a_plan_while_a_transition_runs_is_refused_with_the_reason(ladder):
+    """A second plan mid-transition (it used to take the running transition away from its state:
+    'NoneType' object has no attribute 'times' at the next state's start, found by fuzzing the
+    node) is refused; the transition goes on, and a plan is taken again once the FSM holds."""
+    from controller_node.controller import PlanRefused
+
+    robot, env, stance, q, transition = ladder
+    controller = Controller(robot, load_controller_params(**{"collision.enabled": False}), env)
+    loop = KinematicLoop(controller, q)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    plan = plan_of(robot, env, stance, [transition])
+    controller.set_plan(plan)
+    while controller.fsm.state != "unload":
+        loop.step()
+    with pytest.raises(PlanRefused, match="'unload'"):
+        controller.set_plan(plan)
+    assert controller.plan is plan and controller.transition is transition
+    for _ in range(5):
+        loop.step()
+    assert controller.hold_plan() in ("unload", "open_gripper")
+    controller.set_plan(plan)  # from hold
+    assert controller.plan_pending

@@ -92,6 +92,15 @@ class HoldRefused(RuntimeError):
     """:meth:`Controller.hold_plan` cannot hold now (the message says why)."""
 
 
+class PlanRefused(RuntimeError):
+    """:meth:`Controller.set_plan` cannot take a plan now (the message says why)."""
+
+
+#: FSM states a new plan may start from: nothing half done (a transition in progress is finished,
+#: or abandoned with :meth:`Controller.hold_plan`, first)
+PLAN_READY_STATES = ("idle", "hold", "replan_needed")
+
+
 @dataclass
 class _Ramp:
     kind: str  # release | engage
@@ -250,6 +259,12 @@ class Controller:
         self.fsm.begin(self)
 
     def set_plan(self, plan: WholeBodyPlan) -> None:
+        """Execute ``plan`` from the next tick; PlanRefused while a transition is in progress
+        (its state would lose the transition it runs) or in failure (reset first)."""
+        state = self.fsm.state
+        if state not in PLAN_READY_STATES:
+            raise PlanRefused(f"the controller is in {state!r}: a plan starts from "
+                              f"{', '.join(PLAN_READY_STATES)} (hold first: controller/hold)")
         self.plan = plan
         self.plan_pending = True
         self.transition_index = -1

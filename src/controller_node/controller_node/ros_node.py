@@ -75,7 +75,7 @@ from msgs_py import cdr
 from msgs_py.node_kit import SHUTDOWN_ERRORS, declare_from_schema, diagnose, guarded, run_node
 from msgs_py.topics import qos_for
 
-from .controller import Controller, HoldRefused
+from .controller import Controller, HoldRefused, PlanRefused
 from .estimator import GroundTruthEstimator
 from .params import NODE_NAME, ControllerParams, default_params_path, load_controller_params, parse_controller_params
 from .plan_check import check_plan
@@ -472,7 +472,13 @@ class ControllerNode(LifecycleNode):
                      values={"field": getattr(err, "field", "whole_body_plan"), "rule": getattr(err, "rule", str(err)),
                              "request_id": request_id})
             return
-        self.controller.set_plan(plan)
+        try:
+            self.controller.set_plan(plan)
+        except PlanRefused as err:
+            self.get_logger().error(f"rejected whole_body_plan: {err}")
+            diagnose(self, "controller/plan", f"rejected whole_body_plan: {err}", level=2,
+                     values={"field": "whole_body_plan", "rule": "busy", "request_id": request_id})
+            return
         text = f"accepted whole_body_plan: {len(plan.transitions)} transitions"
         self.get_logger().info(text)
         diagnose(self, "controller/plan", text, level=0,
