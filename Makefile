@@ -13,11 +13,11 @@ export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 setup:
 	@bash scripts/setup_env.sh
 
-# The whole suite on both cores (pytest-xdist): a module's tests stay on one worker, the in-process
-# climbs and the graph-climb classes are spread (tests/conftest.py); each worker has its own
-# private ROS domain.
+# The whole suite on both cores (pytest-xdist --dist loadfile: a file's tests on one worker, so
+# that its module- and class-scoped fixtures, models, plans, graphs, are built once; the long
+# in-process climbs are split over three files for that). Each worker has its own ROS domain.
 test: setup
-	$(PY) -m pytest -q -n 2 --dist loadgroup --durations=25 tests
+	$(PY) -m pytest -q -n 2 --dist loadfile --durations=25 tests
 
 test-fast: setup
 	$(PY) -m pytest -q tests/unit

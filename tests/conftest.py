@@ -48,22 +48,3 @@ def env():
     from climb_core.ladder import load_scenario
 
     return build_environment(load_scenario("default"))
-
-
-def pytest_collection_modifyitems(config, items):
-    """Under xdist (`make test`, --dist loadgroup), a module's tests stay on one worker, so that
-    its module-scoped fixtures (models, plans, recorded runs, graphs) are built once. A module may
-    say otherwise with ``XDIST_SPREAD``: ``True`` spreads its tests over the workers (independent,
-    long tests such as whole climbs), ``"class"`` keeps each class together (class-scoped
-    fixtures: one graph per class) and spreads the classes."""
-    for item in items:
-        module = getattr(item, "module", None)
-        if module is None or any(m.name == "xdist_group" for m in item.iter_markers()):
-            continue
-        spread = getattr(module, "XDIST_SPREAD", False)
-        if spread is True:
-            continue
-        group = item.nodeid.split("::")[0]
-        if spread == "class" and item.cls is not None:
-            group += "::" + item.cls.__name__
-        item.add_marker(pytest.mark.xdist_group(group))

@@ -11,7 +11,7 @@ One graph per climb (a class-scoped fixture; the graph stops when its class is d
   hand's guarded search finds nothing, the FSM reports replan_needed, the coordinator replans from
   the measured state, counted in the result);
 - a cancel mid-climb (the robot holds >= 10 s of sim time with its contacts unchanged, nothing
-  falls);
+  falls), then a second climb on the same graph (it executes on the reset simulator);
 - SIGKILL of the controller mid-climb (the coordinator reports the dead node within 2 s, the
   bridge damps every joint);
 - SIGKILL of scripts/climb.py (no child survives).
@@ -32,8 +32,6 @@ import time
 import pytest
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(3000)]  # a class's graph climb runs in its first test
-#: make test runs the classes (one graph each) on both workers (tests/conftest.py)
-XDIST_SPREAD = "class"
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 CLIMB_TIMEOUT_S = 1500.0  # [s] wall: a 3-rung climb is ~130 s of sim time (slow on a loaded machine)
@@ -385,8 +383,18 @@ class TestCancelMidClimb:
             with c.lock:
                 after = [m for t, m in c.contacts if t > t_cancel + 1.0]
                 fsm_after = {s[2] for s in c.states if s[0] > t_cancel + 1.0}
+            # the same graph takes the next climb: the simulator is reset (its time restarts at 0)
+            # and the reconfigured controller ticks on the new world's states and executes
+            t1 = time.monotonic()
+            second = c.send_goal(rungs=1, controller_mode="qp", scenario="default")
+            c.wait_for(c.executing_since(2.0, t1), 900.0, "the second climb executing", running_since=t1)
+            with c.lock:
+                second_states = [s for s in c.states if s[0] >= t1]
+            c.wait_future(second.cancel_goal_async(), 30.0)
+            second_result = c.result(second, 120.0)
             yield {"result": result, "summary": json.loads(result.summary_json), "cancel": cancel,
-                   "contacts_after": after, "fsm_after": fsm_after}
+                   "contacts_after": after, "fsm_after": fsm_after, "second_states": second_states,
+                   "second_result": second_result}
 
     def test_cancel_mid_climb_holds_with_contacts_unchanged(self, run):
         r, s = run["result"], run["summary"]
@@ -406,6 +414,18 @@ class TestCancelMidClimb:
         for m in after:
             assert not m.fell, m.fall_reason
             assert touching(m) == first, (touching(m), first)
+
+    def test_the_same_graph_takes_the_next_climb(self, run):
+        """After a climb, the next request resets the simulator (sim time restarts near 0) and the
+        controller ticks on the new world: it used to ignore every state stamped before the last
+        one it had ticked, and never answered again."""
+        states = run["second_states"]
+        ticking = [s for s in states if s[2] not in ("idle", "hold", "replan_needed")]
+        assert ticking, {s[2] for s in states}
+        assert ticking[0][1] < 30.0, ticking[0]  # [s] sim time: the new world's, not the old one's
+        assert ticking[-1][1] - ticking[0][1] >= 2.0
+        r = run["second_result"]
+        assert r.cancelled and not r.fell, r.failure_reason
 
 
 # ------------------------------------------------------------------------------ dead controller

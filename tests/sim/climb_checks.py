@@ -1,0 +1,62 @@
+"""Shared by the in-process climb tests (test_climb*.py): the 2-step climb of the default ladder,
+and the checks every executed climb must pass (judged on the simulator's ground truth)."""
+from __future__ import annotations
+
+RUNGS = 2
+TOPICS = {"joint_states", "sim/base_truth", "joint_command", "controller/state",
+          "ft/left_wrist", "ft/right_wrist", "ft/left_ankle", "ft/right_ankle"}
+
+
+def climb(mode: str, tmp_path, max_transitions=None, command_delay_ticks=0):
+    from climb_coordinator.climb import ClimbRequest, run_climb
+    from climb_coordinator.settings import load_climb_settings
+
+    settings = load_climb_settings()
+    result = run_climb(ClimbRequest(ladder="default", robot="g1", rungs=RUNGS, mode=mode, out_dir=tmp_path,
+                                    seed=0, max_transitions=max_transitions,
+                                    command_delay_ticks=command_delay_ticks), settings)
+    return result, settings
+
+
+def check_run(result, settings, mode: str) -> dict:
+    """Checks every executed climb must pass; returns the feet's rungs (simulator contacts)."""
+    from climb_coordinator import judge
+    from msgs_py.bag import read_bag
+
+    s = result.summary
+    backend = result.backend
+    assert backend is not None, s["failure_reason"]
+    # nothing fell, the controller finished its plan without a QP failure
+    assert not s["fell"], s["failure_reason"]
+    assert s["fsm_state"] == "hold", s["failure_reason"]
+    assert s["qp_failures"] == 0
+    assert s["transitions_done"] == s["n_transitions"]
+    # unilateral contacts inside their friction cones over the whole run (sampled at the log
+    # rate; loads of at least climb.judge.cone_force_min)
+    assert sum(len(v) for v in result.cone_samples.values()) > 500
+    for limb, samples in result.cone_samples.items():
+        for normal, tangential, mu in samples:
+            assert normal > 0.0
+            assert tangential <= (1.0 + settings.cone_tolerance) * mu * normal, (limb, normal, tangential, mu)
+    if mode == "compliance":
+        assert not s["motor_trips"]
+        assert s["max_current_ratio"] < 1.0
+    # the bag: readable, the expected topics, decodable messages spanning the run
+    messages = list(read_bag(s["bag"]))
+    assert {m.topic for m in messages} >= TOPICS
+    last = [m for m in messages if m.topic == "controller/state"][-1].decode()
+    assert last.fsm_state == "hold" and last.mode == mode
+    joints = [m for m in messages if m.topic == "joint_states"]
+    assert (joints[-1].stamp_ns - joints[0].stamp_ns) * 1e-9 > 0.9 * s["sim_time_s"] - 1.5
+    assert len(joints[-1].decode().position) == len(result.log.joint_names)
+    loads = judge.limb_loads(backend)
+    return judge.feet_rungs(backend, settings.foot_force_min, loads), loads
+
+
+def assert_standing_on(backend, foot: str, rung: int) -> None:
+    from climb_coordinator import judge
+
+    pose = judge.foot_pose_check(backend, foot, rung)
+    assert pose["horizontal_offset"] < 0.06, (foot, pose)
+    assert -0.01 < pose["height_above_top"] < 0.05, (foot, pose)
+    assert abs(pose["along_rung"]) < 0.2, (foot, pose)
