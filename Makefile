@@ -15,9 +15,10 @@ setup:
 
 # The whole suite on both cores (pytest-xdist --dist loadfile: a file's tests on one worker, so
 # that its module- and class-scoped fixtures, models, plans, graphs, are built once; the long
-# in-process climbs are split over three files for that). Each worker has its own ROS domain.
+# in-process climbs are split over three files for that; the simulator and ROS files first, the
+# long ones). Each worker has its own ROS domain.
 test: setup
-	$(PY) -m pytest -q -n 2 --dist loadfile --durations=25 tests
+	$(PY) -m pytest -q -n 2 --dist loadfile --durations=25 tests/sim tests/ros tests/unit
 
 test-fast: setup
 	$(PY) -m pytest -q tests/unit

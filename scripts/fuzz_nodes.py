@@ -82,12 +82,26 @@ def _controller_prepare(graph: "Graph", c: "FuzzClient") -> None:
 
 
 def _controller_serving(graph: "Graph", c: "FuzzClient") -> None:
-    """The controller (brought back to active) still answers each state and takes a valid plan."""
+    """The controller (brought back to active) still answers each state, holds on request, and
+    takes a valid plan from there (a plan while a fuzzed one runs is refused: busy)."""
     from climb_msgs.msg import WholeBodyPlan
+    from std_srvs.srv import Trigger
 
     c.ensure_active("controller")
     m = c.count("controller/state")
     assert c.spin_until(lambda: c.count("controller/state") > m + 40, 60.0), "controller/state stopped"
+    held = c.call(Trigger, "controller/hold", Trigger.Request())
+    if held is not None and not held.success and "failure" in held.message:
+        # a fuzzed plan drove the QP into failure: the operator's way out is the lifecycle
+        from lifecycle_msgs.msg import Transition
+        from lifecycle_msgs.srv import ChangeState
+
+        for step in (Transition.TRANSITION_DEACTIVATE, Transition.TRANSITION_CLEANUP):
+            c.call(ChangeState, "controller/change_state", ChangeState.Request(transition=Transition(id=step)), 60.0)
+        c.ensure_active("controller")
+        assert c.spin_until(lambda: c.count("controller/state") > m + 80, 60.0), "controller/state stopped"
+        held = c.call(Trigger, "controller/hold", Trigger.Request())
+    assert held is not None and held.success, f"controller/hold: {held.message if held else 'no answer'}"
     n = len(c.reports("controller", "controller/plan"))
     c.publish(WholeBodyPlan, "whole_body_plan", valid_message(WholeBodyPlan))
     assert c.spin_until(lambda: len(c.reports("controller", "controller/plan")) > n, 30.0), "no answer to a plan"
