@@ -7,17 +7,9 @@ import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
-# A private domain per session (the test runner's pid spreads concurrent runs over 1..100); the
-# workers of one xdist run (`make test`) take neighbouring domains, distinct from each other.
+# A private domain per session (the test runner's pid spreads concurrent runs over 0..101).
 if "ROS_DOMAIN_ID" not in os.environ or os.environ.get("CLIMB_TEST_PRIVATE_DOMAIN", "1") == "1":
-    _worker = os.environ.get("PYTEST_XDIST_WORKER", "")
-    if _worker.startswith("gw") and _worker[2:].isdigit():
-        import zlib
-
-        _run = zlib.crc32(os.environ.get("PYTEST_XDIST_TESTRUNUID", "").encode())
-        os.environ["ROS_DOMAIN_ID"] = str(1 + (_run % 25) * 4 + int(_worker[2:]) % 4)
-    else:
-        os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 100)
+    os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 100)
 # The project's loopback profile applied as is: with it, SYSTEM_DEFAULT binds every socket to
 # 127.0.0.1, while LOCALHOST would add senders on 0.0.0.0 and eth0 (measured, climb_core.ros_env).
 os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(ROOT / "config" / "fastdds_localhost.xml")

@@ -1,6 +1,5 @@
 """The ladder paper's +-2 cm rung error, executed: G1's 2-step climb of the default ladder with the
-simulator's rung 2 moved up / down, the planner and the controller knowing the nominal ladder.
-(A file of its own: `make test` runs files on both cores, pytest-xdist --dist loadfile.)"""
+simulator's rung 2 moved up / down, the planner and the controller knowing the nominal ladder."""
 from __future__ import annotations
 
 import pytest

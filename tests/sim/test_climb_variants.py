@@ -1,6 +1,5 @@
 """The climb's variants, executed in-process on G1: a rung up and back down, and a 2-step climb
-planned one cycle at a time from the reached state with a one-period actuation latency.
-(A file of its own: `make test` runs files on both cores, pytest-xdist --dist loadfile.)"""
+planned one cycle at a time from the reached state with a one-period actuation latency."""
 from __future__ import annotations
 
 import pytest
