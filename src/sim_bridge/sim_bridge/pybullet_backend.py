@@ -27,6 +27,7 @@ from .commands import GRIPPER_CLOSE, GRIPPER_OPEN, POSITION, ActuatorCommand, Gr
 from .grasp import GraspManager
 from .motor import MotorParams
 from .params import BridgeParams, load_bridge_params
+from .sim_urdf import sim_urdf_path
 from .world import initial_configuration, resolve_scenario
 
 
@@ -172,7 +173,7 @@ class PyBulletBackend(Backend):
         if self.params.physics.self_collision:
             flags |= p.URDF_USE_SELF_COLLISION | p.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT
         q_ref = robot.q_reference()
-        self.body = p.loadURDF(str(robot.sim_urdf_path()), basePosition=q_ref[:3].tolist(), flags=flags,
+        self.body = p.loadURDF(str(sim_urdf_path(robot)), basePosition=q_ref[:3].tolist(), flags=flags,
                                physicsClientId=cid)
         body = self.body
         n = p.getNumJoints(body, physicsClientId=cid)
