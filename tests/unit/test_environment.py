@@ -1,4 +1,4 @@
-"""Environment geometry from a ladder spec: frames, families, perturbations, coal, PyBullet."""
+"""Environment geometry from a ladder spec: frames, families, perturbations, coal (PyBullet: test_world_bodies)."""
 from __future__ import annotations
 
 import math
@@ -255,91 +255,6 @@ def test_coal_distance_to_a_tread_box():
     tread = env.rung(3)
     point = tread.position + np.array([0.0, 0.0, tread.half_extents[2] + 0.12])
     assert _distance_to(env, "rung_3", point) == pytest.approx(0.12, abs=1e-6)
-
-
-# ------------------------------------------------------------------------------------------------
-# PyBullet
-# ------------------------------------------------------------------------------------------------
-
-@pytest.fixture
-def bullet():
-    pb = pytest.importorskip("pybullet")
-    client = pb.connect(pb.DIRECT)
-    yield pb, client
-    pb.disconnect(physicsClientId=client)
-
-
-@pytest.mark.sim
-def test_pybullet_bodies_match_the_surfaces(bullet):
-    pb, client = bullet
-    env = build_environment("ship")
-    ids = env.add_to_pybullet(client)
-    assert pb.getNumBodies(physicsClientId=client) == len(ids) == len(env.surfaces)
-    assert set(ids) == set(env.surfaces)
-    for name, body in ids.items():
-        assert pb.getDynamicsInfo(body, -1, physicsClientId=client)[0] == 0.0  # static
-        friction = pb.getDynamicsInfo(body, -1, physicsClientId=client)[1]
-        assert friction == pytest.approx(env.pybullet_lateral_friction(env.surfaces[name]))
-    assert pb.getDynamicsInfo(ids["rung_2"], -1, physicsClientId=client)[1] == pytest.approx(math.sqrt(0.5))
-    assert pb.getDynamicsInfo(ids["ground"], -1, physicsClientId=client)[1] == pytest.approx(0.8 / math.sqrt(0.5))
-    for name in ("rung_3", "rail_left", "platform", "stringer_right"):
-        lo, hi = pb.getAABB(ids[name], physicsClientId=client)
-        expected_lo, expected_hi = env.surfaces[name].aabb()
-        np.testing.assert_allclose(lo, expected_lo, atol=1e-6)
-        np.testing.assert_allclose(hi, expected_hi, atol=1e-6)
-
-
-@pytest.mark.sim
-def test_pybullet_rung_3_aabb_default_and_yawed(bullet):
-    pb, client = bullet
-    env = build_environment("default")
-    ids = env.add_to_pybullet(client)
-    rung = env.rung(3)
-    lo, hi = pb.getAABB(ids["rung_3"], physicsClientId=client)
-    extent = np.array([rung.radius, rung.length / 2, rung.radius])  # axis along world y
-    np.testing.assert_allclose(lo, rung.position - extent, atol=1e-6)
-    np.testing.assert_allclose(hi, rung.position + extent, atol=1e-6)
-    yawed = build_environment(yawed_doc())
-    ids = yawed.add_to_pybullet(client)
-    rung = yawed.rung(3)
-    lo, hi = (np.array(v) for v in pb.getAABB(ids["rung_3"], physicsClientId=client))
-    tight = np.abs(rung.axis) * rung.length / 2 + rung.radius * np.sqrt(1 - rung.axis ** 2)  # exact cylinder AABB
-    np.testing.assert_allclose((lo + hi) / 2, rung.position, atol=1e-6)
-    assert np.all((hi - lo) / 2 >= tight - 1e-6)
-    np.testing.assert_allclose((hi - lo) / 2, (rung.aabb()[1] - rung.aabb()[0]) / 2, atol=1e-6)
-
-
-def _slide(pb, client, env, position, push_ratio: float, mu: float) -> float:
-    """Push a 1 kg box resting at `position` with push_ratio * mu * m * g; return how far it slid [m]."""
-    half = 0.05
-    shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[half] * 3, physicsClientId=client)
-    box = pb.createMultiBody(1.0, shape, -1, [position[0], position[1], position[2] + half], physicsClientId=client)
-    pb.changeDynamics(box, -1, lateralFriction=env.robot_lateral_friction, physicsClientId=client)
-    for _ in range(60):  # settle
-        pb.stepSimulation(physicsClientId=client)
-    start = np.array(pb.getBasePositionAndOrientation(box, physicsClientId=client)[0])
-    force = push_ratio * mu * 1.0 * 9.81
-    for _ in range(240):  # 1 s at 240 Hz
-        pb.applyExternalForce(box, -1, [0.0, force, 0.0], start.tolist(), pb.WORLD_FRAME, physicsClientId=client)
-        pb.stepSimulation(physicsClientId=client)
-    end = np.array(pb.getBasePositionAndOrientation(box, physicsClientId=client)[0])
-    pb.removeBody(box, physicsClientId=client)
-    return float(np.linalg.norm(end[:2] - start[:2]))
-
-
-@pytest.mark.sim
-def test_pybullet_contacts_have_the_spec_friction(bullet):
-    """With the robot-side friction sqrt(mu), a push just under mu m g holds and just over slides."""
-    pb, client = bullet
-    pb.setGravity(0, 0, -9.81, physicsClientId=client)
-    env = build_environment("default")
-    env.add_to_pybullet(client)
-    platform = env.surfaces["platform"]
-    on_platform = platform.position + np.array([0.2, 0.0, platform.half_extents[2]])
-    on_ground = np.array([-1.0, 0.0, 0.0])
-    for where, mu in ((on_platform, env.ladder.friction), (on_ground, env.ladder.ground_friction)):
-        assert _slide(pb, client, env, where, 0.85, mu) < 0.002
-        assert _slide(pb, client, env, where, 1.15, mu) > 0.1
 
 
 def test_ground_extent_constant_is_used():

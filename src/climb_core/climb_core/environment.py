@@ -1,8 +1,10 @@
-"""The environment built from one ladder scenario: named surfaces in the world frame, their coal
-collision objects, and static PyBullet bodies. Planner, controller and simulator all use this one
-model (ladder.py parses the spec).
+"""The environment built from one scenario (a ladder, a scene or both): named surfaces in the world
+frame, what each may be used for, and their coal collision objects. Planner, controller and
+simulator all use this one model (ladder.py and scene.py parse the spec; the simulator's bodies
+are built from it by sim_bridge.world_bodies). No simulator code here.
 
-Frames (SI units, world z up, robot starting at the world origin facing +x):
+Frames (SI units, world z up, robot starting at the world origin facing +x, or at a scene's
+``start.pose``):
 
 * Ladder base frame L: on the ground (z = 0) at the middle of the first rung's projection,
   x from the robot toward the ladder, y to the robot's left, z up. ``T_world_ladder`` is
@@ -29,6 +31,23 @@ Surfaces (``Environment.surfaces``, in this order) and their local frames ``T_wo
 | platform                   | platform | box      | box centre; L axes; top face at the top rung's top (z_n + half_height), front face touching the back of the top rung (x_n + half_depth), ``depth`` along +x |
 | stringer_back_left, _right | stringer | box      | a_frame only: from the apex P(t_top) down to the ground at back_inclination b; x = up the back leg (-cos b, 0, sin b), y = L -y, z = (sin b, 0, cos b) (outward) |
 | obstacle_0 ..              | obstacle | box      | box centre, world frame (spec ``position``, R = Rz(yaw) Ry(pitch) Rx(roll) of ``rpy_deg``) |
+| <scene surface name>       | scene    | box / cylinder | centre, world frame (``position``, ``rpy_deg`` as obstacles); a cylinder's axis is local x |
+
+Without a ladder block there are only the ground and the scene's surfaces (``ladder`` None,
+``n_rungs`` 0; ``rung()`` and the stringer direction raise SpecError).
+
+Use of each surface (``Surface.contact_limbs``, ``Surface.bilateral``; one query,
+``Environment.contact_surfaces(limb_type)``, serves ladders and scenes):
+
+| role              | contact_limbs | bilateral |
+| ----------------- | ------------- | --------- |
+| ground            | foot          | no        |
+| rung (circle)     | foot, hand    | yes       |
+| tread (rect rung) | foot          | no        |
+| rail              | hand          | yes       |
+| platform          | foot          | no        |
+| stringer, obstacle| none          | no        |
+| scene             | the spec's ``contact`` | the spec's ``bilateral`` |
 
 Cylinders: axis = local x, ``radius``, ``length`` (full); ``half_extents`` = (length/2, r, r).
 Boxes: ``half_extents`` along local x, y, z. Plane: ``half_extents`` = (G, G, 0), the extent used
@@ -38,12 +57,17 @@ coal and PyBullet cylinders have their axis along their own z: ``Surface.T_world
 a coal Box of ``GROUND_COLLISION_THICKNESS`` whose top face is z = 0, and a PyBullet GEOM_PLANE.
 
 Friction: every ladder surface (rungs, treads, rails, stringers, platform, obstacles) has the
-spec's ``friction``; the ground has ``ground_friction`` (default 0.8). PyBullet combines the two
-bodies' lateral friction coefficients by *product* (``PYBULLET_FRICTION_COMBINATION``). The
-robot's links must all be given ``Environment.robot_lateral_friction`` = sqrt(spec friction)
-(see :func:`pybullet_friction`), and each surface gets ``friction / robot_lateral_friction``,
-so every robot-surface contact has exactly the surface's ``friction`` (ladder: sqrt(mu) on both
-sides; ground: 0.8 / sqrt(mu)).
+spec's ``friction``; a scene surface has its own ``friction``; the ground has the scene's
+``ground.friction`` if given, else the ladder's ``ground_friction``, else 0.8. PyBullet combines
+the two bodies' lateral friction coefficients by *product* (``PYBULLET_FRICTION_COMBINATION``).
+The robot's links must all be given ``Environment.robot_lateral_friction``: sqrt(ladder friction)
+with a ladder, sqrt(ground friction) without one (see :func:`pybullet_friction`), and each
+surface gets ``friction / robot_lateral_friction``, so every robot-surface contact has exactly the
+surface's ``friction`` (ladder: sqrt(mu) on both sides; ground: 0.8 / sqrt(mu); a scene without
+ladder: sqrt(mu_ground) on the robot, mu_s / sqrt(mu_ground) on surface s). Any positive robot
+value gives the same robot-surface coefficients; the square root of the dominant surface's keeps
+the bodies' values near 1 and makes robot-robot and robot-object contacts (thrown drops) have that
+surface's coefficient.
 
 Perturbation (``build_environment(..., perturbed=True)``): rung k moves by (dx, 0, dz) in L
 (its own offset only; stringers, rails and platform keep their nominal places) and the rails move
@@ -59,10 +83,11 @@ import numpy as np
 
 from .errors import SpecError
 from .ladder import DEFAULTS, LadderSpec, PerturbationSpec, Scenario, load_scenario
+from .scene import CONTACT_LIMBS, DEFAULT_GROUND_FRICTION, GoalSpec, SceneSpec, StartSpec
 
 __all__ = [
     "PYBULLET_FRICTION_COMBINATION", "GROUND_HALF_SIZE", "GROUND_COLLISION_THICKNESS", "R_SURFACE_CYLINDER",
-    "ROLES", "Surface", "Environment", "build_environment", "pybullet_friction", "rpy_deg_to_matrix",
+    "ROLES", "ROLE_USE", "Surface", "Environment", "build_environment", "pybullet_friction", "rpy_deg_to_matrix",
     "quaternion_xyzw",
 ]
 
@@ -75,12 +100,12 @@ GROUND_COLLISION_THICKNESS = 1.0
 #: Columns: the coal / PyBullet cylinder primitive axes (x, y, z) in the surface frame. The
 #: primitive's z (its axis) is the surface's x.
 R_SURFACE_CYLINDER = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-ROLES = ("ground", "rung", "tread", "rail", "stringer", "platform", "obstacle")
-#: RGBA of the PyBullet visual shapes, per role.
-ROLE_COLOURS = {
-    "ground": (0.85, 0.85, 0.80, 1.0), "rung": (0.60, 0.60, 0.65, 1.0), "tread": (0.55, 0.55, 0.60, 1.0),
-    "rail": (0.90, 0.75, 0.10, 1.0), "stringer": (0.85, 0.45, 0.10, 1.0), "platform": (0.50, 0.50, 0.55, 1.0),
-    "obstacle": (0.30, 0.45, 0.75, 1.0),
+ROLES = ("ground", "rung", "tread", "rail", "stringer", "platform", "obstacle", "scene")
+#: (contact_limbs, bilateral) of the surfaces the project builds itself, per role (scene
+#: surfaces take their spec's values).
+ROLE_USE: dict[str, tuple[tuple[str, ...], bool]] = {
+    "ground": (("foot",), False), "rung": (("foot", "hand"), True), "tread": (("foot",), False),
+    "rail": (("hand",), True), "stringer": ((), False), "platform": (("foot",), False), "obstacle": ((), False),
 }
 
 
@@ -161,6 +186,8 @@ class Surface:
     length: float = 0.0  # [m] cylinder, full length along local x
     half_extents: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [m] along local x, y, z
     friction: float = 0.0  # [-] Coulomb coefficient of robot contacts on this surface
+    contact_limbs: tuple[str, ...] = ()  # limb types ("foot", "hand") that may be placed on it
+    bilateral: bool = False  # a hand may close around it (no friction cone: a grip limit)
 
     def __post_init__(self) -> None:
         for name in ("T_world_surface", "half_extents"):
@@ -241,8 +268,8 @@ class Environment:
         self.scenario = scenario
         self.surfaces = surfaces
         self.perturbed = perturbed
-        self.T_world_ladder = T_world_ladder
-        self.n_rungs = scenario.ladder.n_rungs
+        self.T_world_ladder = T_world_ladder  # identity without a ladder
+        self.n_rungs = 0 if scenario.ladder is None else scenario.ladder.n_rungs
         self._collision_cache: list | None = None
 
     @property
@@ -250,11 +277,50 @@ class Environment:
         return self.scenario.name
 
     @property
-    def ladder(self) -> LadderSpec:
+    def ladder(self) -> LadderSpec | None:
         return self.scenario.ladder
+
+    @property
+    def scene(self) -> SceneSpec | None:
+        return self.scenario.scene
+
+    @property
+    def goal(self) -> GoalSpec | None:
+        """The scene's explicit goal (base position + tolerance), or None (a ladder's target rung)."""
+        return None if self.scene is None else self.scene.goal
+
+    @property
+    def start_pose(self) -> StartSpec:
+        """Where the robot starts standing (x, y [m], yaw_deg): the scene's ``start.pose``, else the origin."""
+        return StartSpec() if self.scene is None else self.scene.start
+
+    def place_at_start(self, q: np.ndarray) -> np.ndarray:
+        """A free-flyer configuration standing at the world origin facing +x (Pinocchio layout:
+        q[0:3] base position, q[3:7] quaternion x, y, z, w) moved to ``start_pose`` (a copy)."""
+        start = self.start_pose
+        out = np.array(q, dtype=float)
+        R = _rot_z(math.radians(start.yaw_deg))
+        out[:2] = (R @ out[:3])[:2] + (start.x, start.y)
+        half = 0.5 * math.radians(start.yaw_deg)
+        qx, qy, qz, qw = out[3:7]
+        cz, sz = math.cos(half), math.sin(half)  # q_yaw * q
+        out[3:7] = (cz * qx - sz * qy, cz * qy + sz * qx, cz * qz + sz * qw, cz * qw - sz * qz)
+        return out
+
+    def contact_surfaces(self, limb_type: str) -> list[Surface]:
+        """The surfaces a limb of type ``limb_type`` ("foot" or "hand") may be placed on, in build order."""
+        if limb_type not in CONTACT_LIMBS:
+            raise SpecError("limb_type", f"must be one of {', '.join(CONTACT_LIMBS)}, got {limb_type!r}")
+        return [s for s in self.surfaces.values() if limb_type in s.contact_limbs]
+
+    def _need_ladder(self, what: str) -> LadderSpec:
+        if self.ladder is None:
+            raise SpecError("ladder", f"{what} needs a scenario with a ladder: block ({self.name!r} has none)")
+        return self.ladder
 
     def rung(self, i: int) -> Surface:
         """Rung (or tread) ``i``, 1-based, 1 = lowest."""
+        self._need_ladder("rung")
         if not isinstance(i, (int, np.integer)) or not 1 <= i <= self.n_rungs:
             raise SpecError("rung", f"must be an integer in [1, {self.n_rungs}], got {i!r}")
         return self.surfaces[f"rung_{int(i)}"]
@@ -276,13 +342,16 @@ class Environment:
     @property
     def stringer_direction_in_world(self) -> np.ndarray:
         """Unit vector up the (front) stringers, in world."""
-        a = math.radians(self.ladder.inclination_deg)
+        a = math.radians(self._need_ladder("the stringer direction").inclination_deg)
         return self.T_world_ladder[:3, :3] @ np.array([math.cos(a), 0.0, math.sin(a)])
 
     @property
     def robot_lateral_friction(self) -> float:
-        """PyBullet lateralFriction the robot's links must have (sqrt of the spec friction)."""
-        return pybullet_friction(self.ladder.friction)
+        """PyBullet lateralFriction the robot's links must have: sqrt of the ladder's friction,
+        or of the ground's without a ladder (module docstring)."""
+        if self.ladder is not None:
+            return pybullet_friction(self.ladder.friction)
+        return pybullet_friction(self.surfaces["ground"].friction)
 
     def pybullet_lateral_friction(self, surface: Surface) -> float:
         """PyBullet lateralFriction of a surface, so that robot contacts on it have its friction."""
@@ -300,49 +369,9 @@ class Environment:
             self._collision_cache = objects
         return list(self._collision_cache)
 
-    def add_to_pybullet(self, client_id: int) -> dict[str, int]:
-        """Create one static body (mass 0) per surface in PyBullet client ``client_id``.
-
-        Each body's lateralFriction is ``pybullet_lateral_friction(surface)`` (sqrt(mu) for the
-        ladder): PyBullet multiplies the two bodies' coefficients
-        (``PYBULLET_FRICTION_COMBINATION``), so the caller must give every robot link
-        ``robot_lateral_friction`` = sqrt(mu) for robot contacts to have the spec's mu.
-        Restitution, rolling and spinning friction are 0. Returns surface name -> body id.
-        """
-        try:
-            import pybullet as pb
-        except ImportError as exc:  # pragma: no cover - pybullet is a project dependency
-            raise ImportError("add_to_pybullet needs pybullet: pip install pybullet") from exc
-
-        body_ids: dict[str, int] = {}
-        for s in self.surfaces.values():
-            rgba = list(ROLE_COLOURS.get(s.role, (0.7, 0.7, 0.7, 1.0)))
-            if s.shape == "plane":
-                collision = pb.createCollisionShape(pb.GEOM_PLANE, planeNormal=[0, 0, 1], physicsClientId=client_id)
-                visual = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[s.half_extents[0], s.half_extents[1], 5e-4],
-                                              visualFramePosition=[0, 0, -5e-4], rgbaColor=rgba,
-                                              physicsClientId=client_id)
-            elif s.shape == "cylinder":
-                collision = pb.createCollisionShape(pb.GEOM_CYLINDER, radius=s.radius, height=s.length,
-                                                    physicsClientId=client_id)
-                visual = pb.createVisualShape(pb.GEOM_CYLINDER, radius=s.radius, length=s.length, rgbaColor=rgba,
-                                              physicsClientId=client_id)
-            else:
-                half = s.primitive_half_extents().tolist()
-                collision = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=client_id)
-                visual = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=rgba,
-                                              physicsClientId=client_id)
-            position, quaternion = s.pybullet_pose()
-            body = pb.createMultiBody(baseMass=0.0, baseCollisionShapeIndex=collision,
-                                      baseVisualShapeIndex=visual, basePosition=position,
-                                      baseOrientation=quaternion, physicsClientId=client_id)
-            pb.changeDynamics(body, -1, lateralFriction=self.pybullet_lateral_friction(s), restitution=0.0,
-                              rollingFriction=0.0, spinningFriction=0.0, physicsClientId=client_id)
-            body_ids[s.name] = body
-        return body_ids
-
     def __repr__(self) -> str:
-        return (f"Environment({self.name!r}, type={self.ladder.type}, n_rungs={self.n_rungs}, "
+        kind = "scene" if self.ladder is None else f"type={self.ladder.type}"
+        return (f"Environment({self.name!r}, {kind}, n_rungs={self.n_rungs}, "
                 f"surfaces={len(self.surfaces)}, perturbed={self.perturbed})")
 
 
@@ -437,28 +466,53 @@ def build_environment(scenario_or_ladder: Any, perturbed: bool = False) -> Envir
     """Build the surfaces of a Scenario, a LadderSpec, or anything ``load_scenario`` accepts.
 
     ``perturbed=True`` applies the scenario's rung offsets and rails shift (execution model);
-    the default is the nominal ladder the planner sees.
+    the default is the nominal ladder the planner sees. Surfaces: the ground, the ladder's (if
+    any), then the scene's (if any).
     """
     if isinstance(scenario_or_ladder, LadderSpec):
         scenario = Scenario(name="", ladder=scenario_or_ladder)
     else:
         scenario = load_scenario(scenario_or_ladder)
-    lad = scenario.ladder
-    pert = scenario.perturbation if perturbed else PerturbationSpec()
-    T_world_ladder = _homogeneous(_rot_z(math.radians(lad.pose_yaw_deg)), (lad.pose_x, lad.pose_y, 0.0))
+    lad, scene = scenario.ladder, scenario.scene
     surfaces: dict[str, Surface] = {}
 
     def add_world(name: str, role: str, shape: str, T_world: np.ndarray, radius: float = 0.0,
-                  length: float = 0.0, half_extents=(0.0, 0.0, 0.0), friction: float | None = None) -> None:
+                  length: float = 0.0, half_extents=(0.0, 0.0, 0.0), friction: float | None = None,
+                  use: tuple[tuple[str, ...], bool] | None = None) -> None:
+        contact_limbs, bilateral = ROLE_USE[role] if use is None else use
         surfaces[name] = Surface(name=name, role=role, shape=shape, T_world_surface=T_world, radius=float(radius),
                                  length=float(length), half_extents=np.asarray(half_extents, dtype=float),
-                                 friction=float(lad.friction if friction is None else friction))
+                                 friction=float(lad.friction if friction is None else friction),  # type: ignore[union-attr]
+                                 contact_limbs=tuple(contact_limbs), bilateral=bool(bilateral))
+
+    add_world("ground", "ground", "plane", np.eye(4), half_extents=(GROUND_HALF_SIZE, GROUND_HALF_SIZE, 0.0),
+              friction=_ground_friction(scenario))
+    T_world_ladder = np.eye(4)
+    if lad is not None:
+        T_world_ladder = _add_ladder(lad, scenario.perturbation if perturbed else PerturbationSpec(), add_world)
+    if scene is not None:
+        for spec in scene.surfaces:
+            add_world(spec.name, "scene", spec.shape, _homogeneous(rpy_deg_to_matrix(spec.rpy_deg), spec.position),
+                      radius=spec.radius or 0.0, length=spec.length or 0.0, half_extents=spec.half_extents,
+                      friction=spec.friction, use=(spec.contact, spec.bilateral))
+    return Environment(scenario, surfaces, perturbed, T_world_ladder)
+
+
+def _ground_friction(scenario: Scenario) -> float:
+    """The scene's ground.friction if given, else the ladder's ground_friction, else the default."""
+    if scenario.scene is not None and scenario.scene.ground_friction is not None:
+        return scenario.scene.ground_friction
+    return DEFAULT_GROUND_FRICTION if scenario.ladder is None else scenario.ladder.ground_friction
+
+
+def _add_ladder(lad: LadderSpec, pert: PerturbationSpec, add_world: Callable[..., None]) -> np.ndarray:
+    """Add the ladder's surfaces (rungs, stringers, rails, platform, family parts, obstacles);
+    returns T_world_ladder."""
+    T_world_ladder = _homogeneous(_rot_z(math.radians(lad.pose_yaw_deg)), (lad.pose_x, lad.pose_y, 0.0))
 
     def add_in_ladder(name: str, role: str, shape: str, R_ladder: np.ndarray, p_ladder: np.ndarray, **kw) -> None:
         add_world(name, role, shape, T_world_ladder @ _homogeneous(R_ladder, p_ladder), **kw)
 
-    add_world("ground", "ground", "plane", np.eye(4), half_extents=(GROUND_HALF_SIZE, GROUND_HALF_SIZE, 0.0),
-              friction=lad.ground_friction)
     frame = _Frame(lad)
     _ladder_surfaces(frame, pert, add_in_ladder)
     for part in _FAMILY_PARTS[lad.type]:
@@ -467,4 +521,4 @@ def build_environment(scenario_or_ladder: Any, perturbed: bool = False) -> Envir
         add_world(f"obstacle_{i}", "obstacle", "box", _homogeneous(rpy_deg_to_matrix(obstacle.rpy_deg),
                                                                     obstacle.position),
                   half_extents=0.5 * np.asarray(obstacle.size, dtype=float))
-    return Environment(scenario, surfaces, perturbed, T_world_ladder)
+    return T_world_ladder

@@ -1,11 +1,12 @@
 """Ladder / scenario specification: parse and validate the YAML format of specs/ladder_spec.md.
 
-A *scenario* is one YAML document (or an equivalent dict) with a required ``ladder:`` block (the
-nominal environment the planner sees), an optional ``perturbation:`` block (what the simulator
-changes at execution time) and two optional project fields, ``name`` and ``description``.
-:func:`load_scenario` accepts a name in ``config/ladders/``, a file path, YAML text or a dict and
-returns a frozen :class:`Scenario`; the geometry is built from it by
-:func:`climb_core.environment.build_environment`.
+A *scenario* is one YAML document (or an equivalent dict) with a ``ladder:`` block (the
+nominal ladder the planner sees), a ``scene:`` block (surfaces, start and goal beyond a ladder:
+specs/scene_spec.md, parsed by :mod:`climb_core.scene`) or both, an optional ``perturbation:``
+block (what the simulator changes at execution time) and two optional project fields, ``name``
+and ``description``. :func:`load_scenario` accepts a name in ``config/ladders/`` or
+``config/scenes/``, a file path, YAML text or a dict and returns a frozen :class:`Scenario`; the
+geometry is built from it by :func:`climb_core.environment.build_environment`.
 
 Frames and units (SI; angles in degrees in the spec, as written by people): world z up; the
 *ladder base frame* sits on the ground (z = 0) at the middle of the first rung's projection,
@@ -21,7 +22,8 @@ allowed by the spec ("the project may add fields").
 | field                                  | default                   | unit | rule                       |
 | -------------------------------------- | ------------------------- | ---- | -------------------------- |
 | name (+), description (+)              | "" (name: see load)       |      | string                     |
-| ladder                                 | required                  |      | mapping                    |
+| ladder                                 | none; a ladder or a scene is required |  | mapping           |
+| scene                                  | none (scene.py has its own table) |  | mapping                |
 | ladder.type                            | regular                   |      | regular, vertical, a_frame, ship, stairs |
 | ladder.inclination_deg                 | by type: regular 75, a_frame 75, ship 60, stairs 35, vertical 90 | deg | ladders (45, 90], stairs [20, 50], vertical = 90 |
 | ladder.rung_spacing                    | 0.25                      | m    | [0.15, 0.50], along the stringer |
@@ -85,16 +87,19 @@ import numbers
 import pathlib
 import re
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterator, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping
 
 from .errors import SpecError
+
+if TYPE_CHECKING:  # scene.py imports this module's schema types
+    from .scene import SceneSpec
 
 __all__ = [
     "LADDER_TYPES", "STAIR_TYPES", "RUNG_SHAPES", "RAIL_SIDES", "DEFAULTS", "MAX_RUNGS",
     "MAX_ABS_VALUE", "RANGE_TOLERANCE", "INCLINATION_DEFAULT_DEG",
     "RungSpec", "RailSpec", "ObstacleSpec", "LadderSpec", "RungOffset", "DropSpec",
     "PerturbationSpec", "Scenario", "load_scenario", "parse_scenario", "parse_yaml",
-    "ladder_config_dir", "available_ladders", "scenario_to_dict",
+    "ladder_config_dir", "scene_config_dir", "available_ladders", "available_scenes", "scenario_to_dict",
 ]
 
 LADDER_TYPES = ("regular", "vertical", "a_frame", "ship", "stairs")
@@ -200,6 +205,14 @@ class ListOf:
     item: Block
 
 
+@dataclass(frozen=True)
+class Custom:
+    """A field validated by ``parse(value, path)`` (value not None); raises SpecError."""
+
+    parse: Callable[[Any, str], Any]
+    default: Any = None
+
+
 SCHEMA = Block({
     "name": Text(""),
     "description": Text(""),
@@ -246,7 +259,8 @@ SCHEMA = Block({
             "position": Vec3(_REQUIRED),
             "rpy_deg": Vec3((0.0, 0.0, 0.0)),
         })),
-    }, default=_REQUIRED),
+    }, default=None),  # a scenario needs a ladder or a scene (parse_scenario)
+    "scene": Custom(lambda value, path: value, default=None),  # validated by scene.parse_scene
     "perturbation": Block({
         "rung_offsets": ListOf(Block({
             "rung": Num(_REQUIRED, Range(1, None), integer=True),
@@ -344,6 +358,8 @@ def _parse_value(spec: Any, value: Any, path: str) -> Any:
         if not isinstance(value, (list, tuple)):
             raise SpecError(path, f"must be a list of mappings, got {_type_name(value)}")
         return [_parse_block(spec.item, item, f"{path}[{i}]") for i, item in enumerate(value)]
+    if isinstance(spec, Custom):
+        return spec.parse(value, path)
     raise TypeError(f"bad schema entry at {path}: {spec!r}")  # pragma: no cover - programming error
 
 
@@ -447,6 +463,11 @@ _LIST_RULES: tuple[Callable[[dict], Iterator[tuple[str, str]]], ...] = (
     lambda d: _duplicates(d["perturbation"]["rung_offsets"], "rung", "perturbation.rung_offsets"),
     lambda d: ((f"perturbation.rung_offsets[{i}].rung", f"must be in [1, n_rungs = {d['ladder']['n_rungs']}]")
                for i, o in enumerate(d["perturbation"]["rung_offsets"]) if o["rung"] > d["ladder"]["n_rungs"]),
+)
+#: Without a ladder, rung offsets and a rails shift have nothing to move.
+_LIST_RULES_NO_LADDER: tuple[Callable[[dict], Iterator[tuple[str, str]]], ...] = (
+    lambda d: (("perturbation.rung_offsets", "needs a ladder: block") for _ in d["perturbation"]["rung_offsets"][:1]),
+    lambda d: (("perturbation.rails_dy", "needs a ladder: block") for _ in [0] if d["perturbation"]["rails_dy"] != 0.0),
 )
 
 
@@ -557,9 +578,10 @@ class PerturbationSpec:
 @dataclass(frozen=True)
 class Scenario:
     name: str
-    ladder: LadderSpec
+    ladder: LadderSpec | None  # None: a scene without a ladder
     perturbation: PerturbationSpec = field(default_factory=PerturbationSpec)
     description: str = ""
+    scene: SceneSpec | None = None  # scene.py
 
     def to_dict(self) -> dict[str, Any]:
         return scenario_to_dict(self)
@@ -582,20 +604,41 @@ def parse_scenario(data: Any, name: str = "") -> Scenario:
     _reject_non_finite(data)
     doc = _parse_block(SCHEMA, data, "")
     ladder = doc["ladder"]
-    if ladder["inclination_deg"] is None:
+    if ladder is None:
+        if doc["scene"] is None:
+            raise SpecError("ladder", "required field is missing: a scenario needs a ladder: block, "
+                                      "a scene: block or both")
+    elif ladder["inclination_deg"] is None:
         ladder["inclination_deg"] = INCLINATION_DEFAULT_DEG[ladder["type"]]
     for path, applies, holds, rule in _CROSS_RULES:
-        if applies(doc) and not holds(doc):
+        if doc["ladder"] is not None and applies(doc) and not holds(doc):
             value = _lookup(doc, path)
             raise SpecError(path, rule if value is None else f"{rule}, got {value!r}")
-    for list_rule in _LIST_RULES:
+    for list_rule in _LIST_RULES if doc["ladder"] is not None else _LIST_RULES_NO_LADDER:
         for path, rule in list_rule(doc):
             raise SpecError(path, rule)
-    return _build(doc, name or doc["name"])
+    scenario = _build(doc, name or doc["name"])
+    if doc["scene"] is not None:
+        from .scene import parse_scene
+
+        scene = parse_scene(doc["scene"], scenario.ladder)
+        scenario = Scenario(scenario.name, scenario.ladder, scenario.perturbation, scenario.description, scene)
+    return scenario
 
 
 def _build(doc: dict, name: str) -> Scenario:
-    lad = doc["ladder"]
+    pert = doc["perturbation"]
+    perturbation = PerturbationSpec(
+        rung_offsets=tuple(RungOffset(o["rung"], o["dx"], o["dz"]) for o in pert["rung_offsets"]),
+        rails_dy=pert["rails_dy"],
+        drops=tuple(DropSpec(d["mass"], d["radius"], d["speed"], d["at_time"], d["target_link"])
+                    for d in pert["drops"]),
+    )
+    ladder = None if doc["ladder"] is None else _build_ladder(doc["ladder"])
+    return Scenario(name=name, ladder=ladder, perturbation=perturbation, description=doc["description"])
+
+
+def _build_ladder(lad: dict) -> LadderSpec:
     rung, stringer, pose, platform = lad["rung"], lad["stringer"], lad["pose"], lad["top_platform"]
     ladder = LadderSpec(
         type=lad["type"],
@@ -619,14 +662,7 @@ def _build(doc: dict, name: str) -> Scenario:
         top_platform_thickness=(DEFAULTS["ladder.top_platform.thickness"] if platform is None
                                 else platform["thickness"]),
     )
-    pert = doc["perturbation"]
-    perturbation = PerturbationSpec(
-        rung_offsets=tuple(RungOffset(o["rung"], o["dx"], o["dz"]) for o in pert["rung_offsets"]),
-        rails_dy=pert["rails_dy"],
-        drops=tuple(DropSpec(d["mass"], d["radius"], d["speed"], d["at_time"], d["target_link"])
-                    for d in pert["drops"]),
-    )
-    return Scenario(name=name, ladder=ladder, perturbation=perturbation, description=doc["description"])
+    return ladder
 
 
 def parse_yaml(text: str) -> Any:
@@ -649,19 +685,31 @@ def ladder_config_dir() -> pathlib.Path:
     return project_root() / "config" / "ladders"
 
 
+def scene_config_dir() -> pathlib.Path:
+    from .ros_env import project_root
+
+    return project_root() / "config" / "scenes"
+
+
 def available_ladders() -> list[str]:
-    """Names of the shipped scenarios (config/ladders/*.yaml)."""
+    """Names of the shipped ladder scenarios (config/ladders/*.yaml)."""
     return sorted(p.stem for p in ladder_config_dir().glob("*.yaml"))
+
+
+def available_scenes() -> list[str]:
+    """Names of the shipped scene scenarios (config/scenes/*.yaml)."""
+    return sorted(p.stem for p in scene_config_dir().glob("*.yaml"))
 
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
 
 def load_scenario(source: Any) -> Scenario:
-    """A scenario from a name in config/ladders/, a file path, YAML text, a dict or a Scenario.
+    """A scenario from a name in config/ladders/ or config/scenes/, a file path, YAML text, a dict
+    or a Scenario.
 
     A string is read as: YAML text if it contains a newline; else a shipped name if
-    ``config/ladders/<source>.yaml`` exists; else a file path if it names an existing file or
+    ``config/ladders/<source>.yaml`` or else ``config/scenes/<source>.yaml`` exists; else a file path if it names an existing file or
     ends in .yaml/.yml (relative paths: the working directory, then the project root); else YAML
     text when it contains ``:``, ``{`` or ``[``; else an unknown name (``SpecError('source', ...)``). The
     scenario is named after the file stem for names and paths, and after the document's
@@ -679,9 +727,10 @@ def load_scenario(source: Any) -> Scenario:
         return parse_scenario(parse_yaml(source))
     text = source.strip()
     if _NAME_RE.match(text) and not text.lower().endswith((".yaml", ".yml")):
-        candidate = ladder_config_dir() / f"{text}.yaml"
-        if candidate.is_file():
-            return _load_file(candidate)
+        for directory in (ladder_config_dir(), scene_config_dir()):
+            candidate = directory / f"{text}.yaml"
+            if candidate.is_file():
+                return _load_file(candidate)
     if text.lower().endswith((".yaml", ".yml")) or pathlib.Path(text).is_file():
         path = pathlib.Path(text).expanduser()
         if not path.is_absolute() and not path.is_file():
@@ -692,8 +741,8 @@ def load_scenario(source: Any) -> Scenario:
         return _load_file(path)
     if any(c in text for c in ":{["):
         return parse_scenario(parse_yaml(source))
-    raise SpecError("source", f"no ladder named {text!r} in {ladder_config_dir()} "
-                              f"(known: {', '.join(available_ladders())})"[:400])
+    raise SpecError("source", f"no ladder named {text!r} in {ladder_config_dir()} nor scene in {scene_config_dir()} "
+                              f"(known: {', '.join(available_ladders() + available_scenes())})"[:500])
 
 
 def _load_file(path: pathlib.Path) -> Scenario:
@@ -708,7 +757,24 @@ def _load_file(path: pathlib.Path) -> Scenario:
 
 def scenario_to_dict(scenario: Scenario) -> dict[str, Any]:
     """The full spec document (every field explicit); ``parse_scenario`` of it gives it back."""
-    lad = scenario.ladder
+    pert = scenario.perturbation
+    doc: dict[str, Any] = {"name": scenario.name, "description": scenario.description}
+    if scenario.ladder is not None:
+        doc["ladder"] = _ladder_to_dict(scenario.ladder)
+    if scenario.scene is not None:
+        from .scene import scene_to_dict
+
+        doc["scene"] = scene_to_dict(scenario.scene)
+    doc["perturbation"] = {
+        "rung_offsets": [{"rung": o.rung, "dx": o.dx, "dz": o.dz} for o in pert.rung_offsets],
+        "rails_dy": pert.rails_dy,
+        "drops": [{"mass": d.mass, "radius": d.radius, "speed": d.speed, "at_time": d.at_time,
+                   "target_link": d.target_link} for d in pert.drops],
+    }
+    return doc
+
+
+def _ladder_to_dict(lad: LadderSpec) -> dict[str, Any]:
     rung: dict[str, Any] = {"shape": lad.rung.shape, "thickness": lad.rung.thickness}
     if lad.rung.diameter is not None:
         rung["diameter"] = lad.rung.diameter
@@ -738,12 +804,4 @@ def scenario_to_dict(scenario: Scenario) -> dict[str, Any]:
         ladder["top_platform"] = platform
     if lad.back_inclination_deg is not None:
         ladder["a_frame"] = {"back_inclination_deg": lad.back_inclination_deg}
-    pert = scenario.perturbation
-    doc: dict[str, Any] = {"name": scenario.name, "description": scenario.description, "ladder": ladder,
-                           "perturbation": {
-                               "rung_offsets": [{"rung": o.rung, "dx": o.dx, "dz": o.dz} for o in pert.rung_offsets],
-                               "rails_dy": pert.rails_dy,
-                               "drops": [{"mass": d.mass, "radius": d.radius, "speed": d.speed,
-                                          "at_time": d.at_time, "target_link": d.target_link} for d in pert.drops],
-                           }}
-    return doc
+    return ladder

@@ -3,7 +3,7 @@
 One client per instance (``p.connect(p.DIRECT)``, GUI on request); every call passes
 ``physicsClientId``. The robot is the core loader's simulation URDF (absolute meshes, tiny
 inertials, foot boxes, armature, fingers kept), loaded with its URDF inertias; the environment is
-``climb_core.environment.Environment.add_to_pybullet``. Physics runs at ``physics.dt_s`` (1 kHz),
+``sim_bridge.world_bodies.add_environment``. Physics runs at ``physics.dt_s`` (1 kHz),
 ``step()`` advances one control period (default 5 ms = 5 physics steps) and the actuator models
 (actuation.py) compute fresh torques before every physics step. Modelling assumptions are in
 docs/sim_bridge.md.
@@ -29,6 +29,7 @@ from .motor import MotorParams
 from .params import BridgeParams, load_bridge_params
 from .sim_urdf import sim_urdf_path
 from .world import initial_configuration, resolve_scenario
+from .world_bodies import add_environment
 
 
 def _import_pybullet():
@@ -142,7 +143,7 @@ class PyBulletBackend(Backend):
         self.rng = np.random.default_rng(seed)
         self._connect()
         cid = self.client
-        self.env_bodies = self.env.add_to_pybullet(cid)
+        self.env_bodies = add_environment(self.env, cid)
         self._replace_ground_plane()
         self.ground_body = self.env_bodies.get("ground", -1)
         self._env_body_set = set(self.env_bodies.values())
