@@ -148,6 +148,94 @@ class PlanningParams:
 
 
 @dataclass(frozen=True)
+class ContactSearchParams:
+    """Best-first multi-contact search (planner_node.contact_search)."""
+
+    time_limit_s: float = param(60.0, unit="s", min=0.1, description="wall-time limit of one search (all milestones)")
+    max_nodes: int = param(400, unit="-", min=1, description="node budget: contact sets expanded in one search")
+    milestone_tolerance: float = param(0.06, unit="m", min=0.0, description=(
+        "a node within this configuration distance of the targeted milestone reaches it"))
+    base_rotation_weight: float = param(0.3, unit="m/rad", min=0.0, description=(
+        "configuration distance: base rotation angle counted in metres"))
+    limb_weight: float = param(1.0, unit="-", min=0.0, description=(
+        "configuration distance: weight of the mean contact-surface position distance over the limbs"))
+    joint_weight: float = param(0.05, unit="m/rad", min=0.0, description=(
+        "configuration distance: RMS joint angle difference counted in metres"))
+    floating_cost_weight: float = param(1.0, unit="-", min=0.0, description=(
+        "node cost: weight of an added contact's distance to its position at the milestone"))
+    free_limb_cost: float = param(0.05, unit="m", min=0.0, description=(
+        "node cost: a limb without a contact counts this instead of its distance to its milestone place"))
+    min_contacts: int = param(3, unit="-", min=1, description=(
+        "contacts are removed only from sets with more than this (3: the quasi-static climbing gait)"))
+    ik_floating_weight: float = param(100.0, unit="1/m^2", min=0.0, description=(
+        "the search's IK: cost of the added contact's distance to its milestone place (0: pcik.floating_weight)"))
+    reach_margin: float = param(0.02, unit="m", min=0.0, description=(
+        "reach pruning: a surface farther than the limb's length plus this from its root is not tried"))
+    max_surfaces_per_limb: int = param(3, unit="-", min=0, description=(
+        "a free limb tries the surfaces within reach closest to its milestone place, at most this many (0: all)"))
+    key_resolution: float = param(0.02, unit="m", min=1.0e-4, description=(
+        "visited sets: hold centres rounded to this grid (limb -> surface + position)"))
+
+
+@dataclass(frozen=True)
+class GuidePathParams:
+    """Free-flyer guide path (planner_node.guide_path): RRT-Connect, sampler bias, projection."""
+
+    postures_dir: str = param("config/guide_postures", unit="-", description=(
+        "reference postures, <dir>/<robot>.yaml (relative to the project root)"))
+    body_links: tuple[str, ...] = param((
+        "pelvis_contour_link", "torso_link", "head_link", "logo_link", "left_hip_pitch_link", "right_hip_pitch_link",
+        "left_hip_roll_link", "right_hip_roll_link", "left_shoulder_pitch_link", "right_shoulder_pitch_link"),
+        unit="-", description="links of the free-flyer body checked for collision (limbs are left to the contact search)")
+    body_clearance: float = param(0.02, unit="m", min=0.0, description="least signed distance body - environment")
+    reach_fraction: float = param(0.92, unit="-", min=0.1, max=1.0, description=(
+        "a limb reaches a surface closer than this share of its length (G1 standing: hip - ground 0.68 m of 0.748 m)"))
+    min_supporting_limbs: int = param(2, unit="-", min=1, max=4, description=(
+        "equilibrium criterion: limbs that must reach a surface accepting them"))
+    min_supporting_feet: int = param(1, unit="-", min=0, max=2, description="... of which feet (on a surface below the CoM)")
+    foot_below_com: float = param(0.3, unit="m", min=0.0, description=(
+        "a supporting foot's surface point lies at least this far below the CoM"))
+    step_size: float = param(0.3, unit="m", min=0.01, description="RRT-Connect extension step (state metric)")
+    edge_resolution: float = param(0.05, unit="m", min=0.005, description=(
+        "linear-interpolation steering: states checked at most this far apart (state metric)"))
+    milestone_spacing: float = param(0.3, unit="m", min=0.01, description=(
+        "milestones at most this far apart along the path (state metric); about one rung"))
+    yaw_weight: float = param(0.3, unit="m/rad", min=0.0, description="state metric: root yaw counted in metres")
+    posture_weight: float = param(0.3, unit="m", min=0.0, description=(
+        "state metric: one unit of posture blend (between neighbouring reference postures) in metres"))
+    projection_step: float = param(0.02, unit="m", min=0.001, description="projection: the root moves down by this step")
+    max_drop: float = param(1.5, unit="m", min=0.0, description="projection: the root moves down at most this far")
+    projection_collision_tries: int = param(3, unit="-", min=1, description=(
+        "projection: collision checks below the first supported height before the sample is rejected"))
+    workspace_margin_xy: float = param(0.6, unit="m", min=0.0, description=(
+        "sampling box: start and goal roots' bounding box grown by this horizontally"))
+    workspace_margin_z: float = param(0.4, unit="m", min=0.0, description="... and by this vertically")
+    posture_bias: float = param(0.8, unit="-", min=0.0, max=1.0, description=(
+        "probability that a sample takes a reference posture exactly (else a random blend)"))
+    yaw_bias: float = param(0.8, unit="-", min=0.0, max=1.0, description=(
+        "probability that a sample faces the goal direction (else a uniform yaw)"))
+    yaw_sigma: float = param(0.2, unit="rad", min=0.0, description="std dev of a biased sample's yaw around the goal direction")
+    goal_samples: int = param(40, unit="-", min=1, description="goal configurations tried within the tolerance")
+    shortcut_iterations: int = param(30, unit="-", min=0, description="random shortcut attempts on the found path")
+    time_limit_s: float = param(5.0, unit="s", min=0.01, description="wall-time limit of one guide path")
+    seed: int = param(0, unit="-", min=0, description="random seed of the sampler")
+
+
+@dataclass(frozen=True)
+class ContactPathParams:
+    """Generic contact-body paths (planner_node.contact_path): a stance change no primitive fits."""
+
+    lift_clearance: float = param(0.05, unit="m", min=0.0, description=(
+        "the moving limb's surface frame leaves its hold by this along the hold's normal (a grasp: toward the body)"))
+    approach_distance: float = param(0.08, unit="m", min=0.0, description=(
+        "the moving limb reaches its new hold along the hold's normal from this far"))
+    carry_backoff: float = param(0.12, unit="m", min=0.0, description=(
+        "carry way-points: held this far in front of the target (horizontally toward where the limb comes from)"))
+    carry_waypoints: int = param(2, unit="-", min=1, max=8, description=(
+        "way-points between the lift-off and the approach point"))
+
+
+@dataclass(frozen=True)
 class PlannerSettings:
     planning: PlanningParams = group(PlanningParams, "search and planning margins")
     pcik: PCIKParams = group(PCIKParams, "physics-constrained IK")
@@ -155,6 +243,9 @@ class PlannerSettings:
     sampling: SamplingParams = group(SamplingParams, "ending-stance sampling around the seed hold")
     interpolation: InterpolationParams = group(InterpolationParams, "milestone interpolation and discretisation")
     timing: TimingParams = group(TimingParams, "time parameterisation of the plan")
+    guide_path: GuidePathParams = group(GuidePathParams, "free-flyer guide path (RRT-Connect)")
+    contact_search: ContactSearchParams = group(ContactSearchParams, "best-first multi-contact search")
+    contact_path: ContactPathParams = group(ContactPathParams, "generic contact-body paths (no primitive)")
 
 
 def default_settings_path() -> pathlib.Path:
