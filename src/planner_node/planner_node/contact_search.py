@@ -1,0 +1,446 @@
+"""Best-first multi-contact search (multicontact_darpa_tasks.txt, III-C).
+
+The search walks a tree of *contact sets* (:class:`~climb_core.contact.Stance`), each stored with
+its transition configuration, toward the milestones of a guide path, one milestone after the
+other:
+
+- a priority queue (``heapq``) holds the nodes ordered by their cost to the targeted milestone;
+  the best is popped and expanded (once: a contact set already expanded is not expanded again);
+- *add*: for every free limb and every environment surface that accepts it (within reach of the
+  limb's root), a zero-force floating contact on that surface is added and the
+  physics-constrained IK (:func:`planner_node.pcik.solve`) is called with the existing contacts
+  regular, the cost pulling toward the milestone and the floating limb toward its position at the
+  milestone; on success the floating contact becomes a hold (``PCIKResult.holds``) and the new set
+  is pushed;
+- *remove*: for every contact, the IK is called with that contact zero-force (the limb stays on its
+  hold carrying nothing: the robot is in equilibrium on the others); on success the set without it
+  is pushed;
+- branching: the surfaces of a free limb beyond its reach from its root (hip / shoulder) are
+  pruned before any IK call; of the others, the ``max_surfaces_per_limb`` closest to the limb's
+  place at the milestone are tried (0: all of them, the paper's exhaustive expansion);
+- a node whose configuration is within ``milestone_tolerance`` of the milestone reaches it; the
+  next milestone is searched from that node; after the last one the stance sequence and the
+  transition configurations are read back up the tree (:class:`~climb_core.contact.ContactPlan`:
+  consecutive stances differ by exactly one hold).
+
+Configuration distance (:func:`configuration_distance`), in metres:
+
+    d(q, q_m) = |p_base - p_base,m| + w_rot angle(R_base,m^T R_base)
+                + w_limb sum_limbs |p_limb - p_limb,m| + w_joint rms(q_joints - q_joints,m)
+
+Base position and the four contact surfaces' positions are what a contact transition changes and
+what the guide path prescribes (the robot's place and where its limbs are); they are in metres
+and comparable across robots. The joints enter with a small weight (per radian, RMS so that the
+number of joints does not matter): they separate postures that put the limbs at the same places
+without dominating the task-space terms. A node's priority is d to the milestone, plus
+``floating_cost_weight`` times the floating limb's distance to its milestone position (the paper's
+cost of an added contact), where a limb without a contact counts ``free_limb_cost`` instead of its
+distance (it is free to go to its milestone place next: removing the contact of a limb far from
+its place ranks high, removing one already there ranks low).
+
+Deterministic: ties in the queue are broken by insertion order, candidates are enumerated in a
+fixed order, and the IK is deterministic. Bounded by ``time_limit_s`` and ``max_nodes``; a
+failure raises :class:`~climb_core.errors.InfeasibleError` ``contact_search:<reason>`` with the
+nodes expanded and IK calls in the detail.
+"""
+from __future__ import annotations
+
+import dataclasses
+import heapq
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from climb_core import feasibility
+from climb_core import holds as holds_mod
+from climb_core.contact import FEET, HANDS, LIMBS, ContactPlan, GuidePath, Hold, Stance
+from climb_core.errors import InfeasibleError, SpecError
+
+from . import pcik
+from .settings import ContactSearchParams, PCIKParams
+
+def limb_type(limb: str) -> str:
+    """``hand`` or ``foot``."""
+    if limb in HANDS:
+        return "hand"
+    if limb in FEET:
+        return "foot"
+    raise SpecError("contact_search.limb", f"must be one of {', '.join(LIMBS)}; got {limb!r}")
+
+
+def accepting_surfaces(robot: Any, env: Any, limb: str) -> list[Any]:
+    """The environment surfaces ``limb`` may be placed on (``Environment.contact_surfaces``), in
+    the environment's order, that its robot surface can make a hold with: a grasp closes only
+    around a bilateral cylinder (a rung, a rail: a bilateral contact, grip limit instead of a
+    friction cone, as :func:`climb_core.holds.make_hold` builds it); a sole or palm rests on a
+    plane, a box top or a cylinder's top line."""
+    kind = holds_mod.limb_surface(robot, limb).kind
+    return [sf for sf in env.contact_surfaces(limb_type(limb))
+            if kind != "grasp" or (sf.bilateral and sf.shape == "cylinder")]
+
+
+# --------------------------------------------------------------------------------------------
+# geometry: distances, reach
+
+
+@dataclass(frozen=True)
+class _LimbReach:
+    root_joint: int  # Pinocchio joint id of the limb's first joint (hip / shoulder)
+    length: float  # [m] upper bound of the root-to-contact-surface distance
+
+
+def limb_reach(robot: Any, limb: str) -> _LimbReach:
+    """The limb's root joint and its length: the sum of the joint-origin-to-joint-origin distances
+    along the chain plus the last joint to the contact surface origin (an upper bound of the
+    distance the surface can be from the root, whatever the joint angles)."""
+    cfg = robot.config.limbs[limb]
+    model = robot.model
+    data = model.createData()
+    q = robot.q_reference()
+    pin.framesForwardKinematics(model, data, q)
+    ids = [int(model.getJointId(j)) for j in cfg.joints]
+    pts = [data.oMi[j].translation.copy() for j in ids]
+    fid = robot.frame_id(cfg.surface.frame)
+    pts.append((data.oMf[fid].homogeneous @ np.asarray(cfg.surface.T_frame_surface))[:3, 3])
+    length = float(sum(np.linalg.norm(b - a) for a, b in zip(pts[:-1], pts[1:])))
+    return _LimbReach(ids[0], length)
+
+
+def surface_distance(surface: Any, point: np.ndarray) -> float:
+    """[m] distance from ``point`` to the surface's solid (0 inside)."""
+    T = np.asarray(surface.T_world_surface)
+    local = T[:3, :3].T @ (np.asarray(point, dtype=float) - T[:3, 3])
+    if surface.shape == "cylinder":
+        half = 0.5 * float(surface.length)
+        x = float(np.clip(local[0], -half, half))
+        radial = math.hypot(local[1], local[2])
+        return float(math.hypot(local[0] - x, max(radial - float(surface.radius), 0.0)))
+    if surface.shape == "plane":
+        return max(float(local[2]), 0.0)
+    h = np.asarray(surface.half_extents, dtype=float)
+    return float(np.linalg.norm(np.maximum(np.abs(local) - h, 0.0)))
+
+
+class _Kinematics:
+    """Forward kinematics the search needs (limb surface positions, limb roots), one pin.Data."""
+
+    def __init__(self, robot: Any):
+        self.robot = robot
+        self.data = robot.model.createData()
+        self.frames = {limb: (robot.frame_id(robot.config.limbs[limb].surface.frame),
+                              np.asarray(robot.config.limbs[limb].surface.T_frame_surface))
+                       for limb in LIMBS if limb in robot.config.limbs}
+        self.reach = {limb: limb_reach(robot, limb) for limb in self.frames}
+
+    def limb_positions(self, q: np.ndarray) -> dict[str, np.ndarray]:
+        """limb -> [m] world position of its contact surface origin at q."""
+        pin.framesForwardKinematics(self.robot.model, self.data, q)
+        return {limb: (self.data.oMf[fid].homogeneous @ T)[:3, 3].copy() for limb, (fid, T) in self.frames.items()}
+
+    def roots(self, q: np.ndarray) -> dict[str, np.ndarray]:
+        """limb -> [m] world position of its root joint at q (call after :meth:`limb_positions`
+        with the same q, or alone)."""
+        pin.forwardKinematics(self.robot.model, self.data, q)
+        return {limb: self.data.oMi[r.root_joint].translation.copy() for limb, r in self.reach.items()}
+
+
+@dataclass(frozen=True)
+class _Target:
+    """A milestone: its configuration and its limb positions."""
+
+    q: np.ndarray
+    limbs: dict[str, np.ndarray]
+
+
+def distance_terms(q: np.ndarray, limbs: dict[str, np.ndarray], target: _Target,
+                   params: ContactSearchParams) -> tuple[float, dict[str, float]]:
+    """(base and joint terms [m], limb -> its contact surface's distance to the milestone's [m])."""
+    dp = float(np.linalg.norm(q[:3] - target.q[:3]))
+    R = pin.Quaternion(np.asarray(q[3:7])).toRotationMatrix()
+    Rm = pin.Quaternion(np.asarray(target.q[3:7])).toRotationMatrix()
+    angle = float(np.linalg.norm(pin.log3(Rm.T @ R)))
+    dj = float(np.sqrt(np.mean((q[7:] - target.q[7:]) ** 2)))
+    per_limb = {k: float(np.linalg.norm(limbs[k] - target.limbs[k])) for k in target.limbs}
+    return dp + params.base_rotation_weight * angle + params.joint_weight * dj, per_limb
+
+
+def configuration_distance(q: np.ndarray, limbs: dict[str, np.ndarray], target: _Target,
+                           params: ContactSearchParams) -> float:
+    """d(q, q_m) [m] of the module docstring (``limbs``: the limb positions at q)."""
+    rest, per_limb = distance_terms(q, limbs, target, params)
+    return rest + params.limb_weight * sum(per_limb.values())
+
+
+# --------------------------------------------------------------------------------------------
+# the tree
+
+
+@dataclass
+class Node:
+    """A contact set with its transition configuration; ``parent`` None at the root."""
+
+    stance: Stance
+    q: np.ndarray
+    parent: "Node | None" = None
+    move: str = ""  # "add:<limb>@<surface>" | "remove:<limb>@<surface>" | "" (root)
+    depth: int = 0
+    distance: float = math.inf  # [m] configuration distance to the milestone it was pushed for
+
+
+@dataclass
+class SearchStats:
+    nodes_expanded: int = 0
+    nodes_pushed: int = 0
+    ik_calls: int = 0
+    ik_failures: int = 0
+    ik_time_s: float = 0.0
+    pruned_by_reach: int = 0
+    pruned_by_rank: int = 0
+    skipped_visited: int = 0
+    time_s: float = 0.0
+    milestones_reached: int = 0
+
+    @property
+    def ik_calls_per_s(self) -> float:
+        return self.ik_calls / self.time_s if self.time_s > 0 else 0.0
+
+    def as_dict(self) -> dict:
+        return {"nodes_expanded": self.nodes_expanded, "nodes_pushed": self.nodes_pushed,
+                "ik_calls": self.ik_calls, "ik_failures": self.ik_failures,
+                "ik_calls_per_s": round(self.ik_calls_per_s, 2), "ik_time_s": round(self.ik_time_s, 3),
+                "pruned_by_reach": self.pruned_by_reach, "pruned_by_rank": self.pruned_by_rank,
+                "skipped_visited": self.skipped_visited,
+                "milestones_reached": self.milestones_reached, "time_s": round(self.time_s, 3)}
+
+
+@dataclass
+class SearchResult:
+    plan: ContactPlan
+    moves: list[str]  # per stance after the first: "add:<limb>@<surface>" / "remove:<limb>@<surface>"
+    stats: SearchStats
+    milestone_nodes: list[int] = field(default_factory=list)  # index in plan.stances where each milestone was reached
+
+
+def stance_key(stance: Stance, resolution: float) -> frozenset:
+    """Canonical key of a contact set: limb -> surface and hold centre on a ``resolution`` grid."""
+    return frozenset((h.limb, h.env_surface, tuple(int(v) for v in np.round(h.centre / resolution)))
+                     for h in stance.holds)
+
+
+# --------------------------------------------------------------------------------------------
+# the search
+
+
+class _Search:
+    def __init__(self, robot: Any, env: Any, params: ContactSearchParams, pcik_params: PCIKParams | None,
+                 feasibility_cfg: feasibility.FeasibilityConfig | None):
+        self.robot, self.env, self.params = robot, env, params
+        if params.ik_floating_weight > 0.0:  # the added contact lands at its milestone place
+            pcik_params = dataclasses.replace(pcik_params, floating_weight=params.ik_floating_weight)
+        self.pcik_params = pcik_params
+        self.cfg = feasibility_cfg or feasibility.load_config()
+        self.kin = _Kinematics(robot)
+        self.surfaces = {limb: accepting_surfaces(robot, env, limb) for limb in self.kin.frames}
+        self.stats = SearchStats()
+        self.t0 = time.perf_counter()
+        self.best: tuple[float, int] = (math.inf, -1)  # closest distance to the milestone, its index
+
+    # ---- budget
+    def _out_of_budget(self) -> str:
+        if time.perf_counter() - self.t0 > self.params.time_limit_s:
+            return "time_limit"
+        if self.stats.nodes_expanded >= self.params.max_nodes:
+            return "node_budget"
+        return ""
+
+    # ---- IK
+    def _ik(self, q_seed: np.ndarray, contacts: list[pcik.ContactSpec], q_target: np.ndarray) -> pcik.PCIKResult | None:
+        """The physics-constrained IK; None when the holds module cannot model a contact of the pair
+        (SpecError: e.g. a sole on a surface shape it cannot stand on)."""
+        t = time.perf_counter()
+        self.stats.ik_calls += 1
+        try:
+            res = pcik.solve(self.robot, self.env, q_seed, contacts, q_target=q_target, params=self.pcik_params,
+                             feasibility_cfg=self.cfg)
+        except SpecError:
+            res = None
+        self.stats.ik_time_s += time.perf_counter() - t
+        if res is None or not res.success:
+            self.stats.ik_failures += 1
+            return None
+        return res
+
+    def _priority(self, node: Node, target: _Target, floating: tuple[str, np.ndarray] | None = None) -> float:
+        """Node cost: the distance of the limbs in contact counted at their places, each free
+        limb at ``free_limb_cost`` (it may go anywhere next: a removal that frees a limb far from
+        its milestone place ranks high), plus the added contact's distance to its preferred place."""
+        limbs = self.kin.limb_positions(node.q)
+        rest, per_limb = distance_terms(node.q, limbs, target, self.params)
+        node.distance = rest + self.params.limb_weight * sum(per_limb.values())
+        held = set(node.stance.limbs)
+        cost = (rest + self.params.limb_weight * sum(d for k, d in per_limb.items() if k in held)
+                + self.params.free_limb_cost * sum(1 for k in per_limb if k not in held))
+        if floating is not None:
+            limb, preferred = floating
+            cost += self.params.floating_cost_weight * float(np.linalg.norm(limbs[limb] - preferred))
+        return cost
+
+    # ---- expansion
+    def _children(self, node: Node, target: _Target, seen: set) -> list[tuple[Node, tuple | None]]:
+        stance, q = node.stance, node.q
+        regular = [pcik.ContactSpec(h.limb, pcik.REGULAR, hold=h) for h in stance.holds]
+        out: list[tuple[Node, tuple | None]] = []
+        roots = self.kin.roots(q)
+        for limb in self.kin.frames:  # add a floating contact for each free limb and accepting surface
+            if stance.hold(limb) is not None:
+                continue
+            preferred = target.limbs[limb]
+            reach = self.kin.reach[limb].length + self.params.reach_margin
+            candidates = []
+            for sf in self.surfaces[limb]:
+                if surface_distance(sf, roots[limb]) > reach:
+                    self.stats.pruned_by_reach += 1
+                else:
+                    candidates.append(sf)
+            cap = self.params.max_surfaces_per_limb
+            if cap and len(candidates) > cap:  # the surfaces closest to the limb's milestone place
+                order = sorted(range(len(candidates)), key=lambda i: (surface_distance(candidates[i], preferred), i))
+                self.stats.pruned_by_rank += len(candidates) - cap
+                candidates = [candidates[i] for i in sorted(order[:cap])]
+            for sf in candidates:
+                if self._out_of_budget():
+                    return out
+                spec = pcik.ContactSpec(limb, pcik.FLOATING, surface=sf.name, preferred_position=preferred)
+                res = self._ik(q, regular + [spec], target.q)
+                if res is None or limb not in res.holds:
+                    continue
+                child = Stance(stance.holds + (res.holds[limb],), name=f"add:{limb}@{sf.name}")
+                out.append((Node(child, res.q, node, f"add:{limb}@{sf.name}", node.depth + 1), (limb, preferred)))
+        if len(stance.holds) > self.params.min_contacts:  # remove each contact (zero force)
+            for h in stance.holds:
+                child = stance.without(h.limb)
+                if stance_key(child, self.params.key_resolution) in seen:
+                    self.stats.skipped_visited += 1
+                    continue
+                if self._out_of_budget():
+                    return out
+                contacts = [c if c.limb != h.limb else pcik.ContactSpec(h.limb, pcik.ZERO_FORCE, hold=h)
+                            for c in regular]
+                res = self._ik(q, contacts, target.q)
+                if res is None:
+                    continue
+                child = Stance(child.holds, name=f"remove:{h.limb}@{h.env_surface}")
+                out.append((Node(child, res.q, node, f"remove:{h.limb}@{h.env_surface}", node.depth + 1), None))
+        return out
+
+    def to_milestone(self, root: Node, target: _Target, index: int) -> Node:
+        """Best-first search from ``root`` until a node within tolerance of ``target``."""
+        tol = self.params.milestone_tolerance
+        counter = 0
+        queue: list[tuple[float, int, Node]] = []
+        heapq.heappush(queue, (self._priority(root, target), counter, root))
+        seen = {stance_key(root.stance, self.params.key_resolution)}
+        expanded: set = set()
+        self.best = (root.distance, index)
+        while queue:
+            reason = self._out_of_budget()
+            if reason:
+                self._fail(reason, index)
+            _, _, node = heapq.heappop(queue)
+            if node.distance <= tol:
+                return node
+            key = stance_key(node.stance, self.params.key_resolution)
+            if key in expanded:
+                self.stats.skipped_visited += 1
+                continue
+            expanded.add(key)
+            self.stats.nodes_expanded += 1
+            for child, floating in self._children(node, target, seen):
+                ckey = stance_key(child.stance, self.params.key_resolution)
+                if ckey in seen:
+                    self.stats.skipped_visited += 1
+                    continue
+                seen.add(ckey)
+                counter += 1
+                prio = self._priority(child, target, floating)
+                self.best = min(self.best, (child.distance, index))
+                heapq.heappush(queue, (prio, counter, child))
+                self.stats.nodes_pushed += 1
+        self._fail("exhausted", index)
+        raise AssertionError  # unreachable
+
+    def _fail(self, reason: str, index: int) -> None:
+        s = self.stats
+        s.time_s = time.perf_counter() - self.t0
+        raise InfeasibleError(f"contact_search:{reason}", (
+            f"milestone {index} not reached: closest node {self.best[0]:.3f} m away (tolerance "
+            f"{self.params.milestone_tolerance} m) after {s.nodes_expanded} nodes expanded, {s.ik_calls} IK calls "
+            f"({s.ik_failures} failed), {s.time_s:.1f} s (time limit {self.params.time_limit_s} s, node budget "
+            f"{self.params.max_nodes})"))
+
+
+def search(robot: Any, env: Any, q_start: np.ndarray, stance_start: Stance, path: GuidePath,
+           params: ContactSearchParams | None = None, *, pcik_params: PCIKParams | None = None,
+           feasibility_cfg: feasibility.FeasibilityConfig | None = None) -> SearchResult:
+    """The stance sequence from (``q_start``, ``stance_start``) through the milestones of ``path``.
+
+    The first milestone is skipped when the start is already within tolerance of it (a guide path
+    starts at the start configuration). ``params`` default to config/planner.yaml's
+    ``contact_search``; ``pcik_params`` to its ``pcik``; ``feasibility_cfg`` to the frozen
+    config/feasibility.yaml. InfeasibleError ``contact_search:<reason>`` (time_limit,
+    node_budget, exhausted) when a milestone is not reached; SpecError for a guide path of another
+    robot or an empty one."""
+    from .settings import load_settings
+
+    settings = None
+    if params is None or pcik_params is None:
+        settings = load_settings()
+    params = params or settings.contact_search
+    pcik_params = pcik_params or settings.pcik
+    if path.robot != robot.config.name:
+        raise SpecError("guide_path.robot", f"must be the robot searched for ({robot.config.name!r}), got {path.robot!r}")
+    if not path.milestones:
+        raise SpecError("guide_path.milestones", "needs at least one milestone")
+    nq = robot.model.nq
+    for i, m in enumerate(path.milestones):
+        if np.asarray(m).shape != (nq,) or not np.isfinite(m).all():
+            raise SpecError(f"guide_path.milestones[{i}]", f"must be {nq} finite numbers")
+    s = _Search(robot, env, params, pcik_params, feasibility_cfg)
+    node = Node(stance_start, np.asarray(q_start, dtype=float).copy())
+    reached: list[Node] = []
+    for i, m in enumerate(path.milestones):
+        q_m = np.asarray(m, dtype=float)
+        target = _Target(q_m, s.kin.limb_positions(q_m))
+        node = s.to_milestone(node, target, i)
+        reached.append(node)
+        s.stats.milestones_reached = i + 1
+    s.stats.time_s = time.perf_counter() - s.t0
+    chain: list[Node] = []
+    n: Node | None = node
+    while n is not None:
+        chain.append(n)
+        n = n.parent
+    chain.reverse()
+    index = {id(n): k for k, n in enumerate(chain)}
+    plan = ContactPlan(robot=robot.config.name, environment=env.name, joint_names=list(robot.joint_names),
+                       stances=[n.stance for n in chain], transition_configurations=[n.q.copy() for n in chain])
+    return SearchResult(plan, [n.move for n in chain[1:]], s.stats, [index[id(n)] for n in reached])
+
+
+def transition_changes(before: Stance, after: Stance) -> tuple[list[Hold], list[Hold]]:
+    """(holds added, holds removed) from ``before`` to ``after`` (a hold is the same when its limb,
+    surface and points are)."""
+    def same(a: Hold, b: Hold) -> bool:
+        return a.limb == b.limb and a.env_surface == b.env_surface and np.allclose(a.positions, b.positions)
+
+    added = [h for h in after.holds if not any(same(h, g) for g in before.holds)]
+    removed = [h for h in before.holds if not any(same(h, g) for g in after.holds)]
+    return added, removed
+
+
+__all__ = ["search", "SearchResult", "SearchStats", "Node", "configuration_distance", "accepting_surfaces",
+           "limb_reach", "surface_distance", "stance_key", "transition_changes", "limb_type"]

@@ -1,0 +1,174 @@
+"""Best-first multi-contact search (planner_node.contact_search) for G1 on the default ladder.
+
+The search never reads the primitive library (``load_library`` is made to fail while it runs).
+Milestones: the ``ladder_4_contacts`` fixture (feet on rung 1, hands on rung 5), then that
+configuration moved up the ladder by one and two rung spacings: the feet must end on rung 3 (the
+spec's ``rungs_reached``: the highest rung with both feet on it).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+
+import numpy as np
+import pytest
+
+from climb_core import collision, feasibility, fixtures
+from climb_core.contact import FEET, GuidePath
+from climb_core.errors import InfeasibleError, SpecError
+from planner_node import contact_search as cs
+from planner_node.pcik import check_with_exclusions
+from planner_node.settings import load_settings
+
+RUNGS = 3  # the feet end on this rung
+
+
+def rung_index(surface: str) -> int:
+    return int(surface.removeprefix("rung_")) if surface.startswith("rung_") else 0
+
+
+def ladder_path(g1, env, cycles: int) -> tuple[np.ndarray, object, GuidePath]:
+    stance, q = fixtures.get("ladder_4_contacts", g1, env)
+    step = env.rung_centre(2) - env.rung_centre(1)  # one rung spacing along the stringers
+    milestones = []
+    for k in range(cycles + 1):
+        m = q.copy()
+        m[:3] += k * step
+        milestones.append(m)
+    return q, stance, GuidePath(g1.config.name, env.name, list(g1.joint_names), milestones)
+
+
+@pytest.fixture(scope="module")
+def no_primitives():
+    """The primitive library cannot be loaded while the search runs (no hints)."""
+    from planner_node import primitives
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the contact search read the primitive library")
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(primitives, "load_library", refuse)
+    yield
+    mp.undo()
+
+
+@pytest.fixture(scope="module")
+def climb(g1, env, no_primitives):
+    start_rung = 1
+    q0, stance0, path = ladder_path(g1, env, RUNGS - start_rung)
+    t0 = time.perf_counter()
+    result = cs.search(g1, env, q0, stance0, path)
+    elapsed = time.perf_counter() - t0
+    figures = {"contact_search_3_rungs_s": round(elapsed, 2), **result.stats.as_dict(),
+               "transitions": len(result.moves)}
+    print("contact_search figures:", json.dumps(figures))
+    return result, elapsed, path
+
+
+def test_three_rungs_found_within_time(climb):
+    result, elapsed, path = climb
+    assert elapsed <= 60.0, f"contact_search_3_rungs_s = {elapsed:.1f} (required <= 60 s)"
+    s = result.stats
+    assert s.milestones_reached == len(path.milestones)
+    assert s.ik_calls > 0 and s.nodes_expanded >= len(result.moves) // 2
+    # the last stance: both feet on a rung >= 3, at the rung's top line (the hold's points and the
+    # soles at that configuration)
+    last, q_last = result.plan.stances[-1], result.plan.transition_configurations[-1]
+    for foot in FEET:
+        h = last.hold(foot)
+        assert h is not None and rung_index(h.env_surface) >= RUNGS, f"{foot}: {h and h.env_surface}"
+    hands = [last.hold(h) for h in ("left_hand", "right_hand")]
+    assert all(h is not None and h.bilateral and h.grip_force_limit > 0 for h in hands)  # rung grasps
+    assert len(result.moves) == len(result.plan.stances) - 1
+
+
+def test_consecutive_stances_differ_by_one_hold(climb, g1, env):
+    result, _, _ = climb
+    stances = result.plan.stances
+    for i, (a, b) in enumerate(zip(stances[:-1], stances[1:]), start=1):
+        added, removed = cs.transition_changes(a, b)
+        assert len(added) + len(removed) == 1, f"stance {i}: +{len(added)} -{len(removed)}"
+        move = result.moves[i - 1]
+        h = (added or removed)[0]
+        assert move == f"{'add' if added else 'remove'}:{h.limb}@{h.env_surface}"
+        assert h.env_surface in env.surfaces
+
+
+def test_every_transition_configuration_passes_the_frozen_check(climb, g1, env):
+    """Added contact: the configuration passes the frozen check on its stance. Removed contact
+    (zero force: the limb still on its hold): it passes the frozen check on the stance it leaves,
+    and the stance without the limb is in equilibrium there (that limb's touch excluded)."""
+    result, _, _ = climb
+    frozen = feasibility.load_config()
+    stances, qs = result.plan.stances, result.plan.transition_configurations
+    res0 = feasibility.check(g1, env, qs[0], stances[0], frozen)
+    assert res0.feasible, res0.violated
+    for i in range(1, len(stances)):
+        added, removed = cs.transition_changes(stances[i - 1], stances[i])
+        if added:
+            res = feasibility.check(g1, env, qs[i], stances[i], frozen)
+            assert res.feasible, f"stance {i} ({result.moves[i - 1]}): {res.violated}"
+            # the new limb is on its hold: its surface centre on the hold's surface
+            h = added[0]
+            p = g1.T_world_surface(h.limb, qs[i])[:3, 3]
+            sf = env.surfaces[h.env_surface]
+            tol = float(sf.radius) + 0.01 if sf.shape == "cylinder" else 0.01
+            assert cs.surface_distance(sf, p) <= tol
+        else:
+            h = removed[0]
+            res = feasibility.check(g1, env, qs[i], stances[i - 1], frozen)
+            assert res.feasible, f"stance {i} ({result.moves[i - 1]}) on the stance it leaves: {res.violated}"
+            res = check_with_exclusions(g1, env, qs[i], stances[i], frozen, [(h.limb, h.env_surface)])
+            assert res.feasible, f"stance {i} ({result.moves[i - 1]}) without {h.limb}: {res.violated}"
+
+
+def test_deterministic(climb, g1, env, no_primitives):
+    """The same search to the first milestone gives the same moves and configurations (to 1e-3:
+    coal's distance queries are warm-started from the previous ones, which moves the IK's last
+    digits)."""
+    result, _, path = climb
+    q0, stance0, _ = ladder_path(g1, env, 1)
+    short = GuidePath(path.robot, path.environment, path.joint_names, path.milestones[:2])
+    again = cs.search(g1, env, q0, stance0, short)
+    n = len(again.moves)
+    assert again.moves == result.moves[:n]
+    for a, b in zip(again.plan.transition_configurations, result.plan.transition_configurations[:n + 1]):
+        assert np.abs(a - b).max() < 1e-3
+
+
+def test_out_of_reach_milestone_fails_from_the_search_within_its_time_limit(climb, g1, env, no_primitives):
+    """A milestone 2 m to the side of the ladder, in the air: collision-free, no surface within
+    reach of its limbs. The search runs out of its time limit and says how far it got."""
+    _, _, path = climb
+    q0, stance0, _ = ladder_path(g1, env, 0)
+    far = path.milestones[1].copy()
+    far[1] += 2.0
+    chk = collision.checker(g1, env, feasibility.load_config().collision)
+    margin = feasibility.load_config().check.collision_margin
+    assert chk.distances(far, contacts=[]).min_distance > margin  # collision-free: not a validation failure
+    roots = cs._Kinematics(g1).roots(far)
+    assert all(cs.surface_distance(sf, roots[limb]) > cs.limb_reach(g1, limb).length
+               for limb in roots for sf in cs.accepting_surfaces(g1, env, limb))
+    params = dataclasses.replace(load_settings().contact_search, time_limit_s=4.0)
+    bad = GuidePath(path.robot, path.environment, path.joint_names, [q0, far])
+    t0 = time.perf_counter()
+    with pytest.raises(InfeasibleError) as err:
+        cs.search(g1, env, q0, stance0, bad, params)
+    elapsed = time.perf_counter() - t0
+    assert err.value.constraint in ("contact_search:time_limit", "contact_search:exhausted")
+    assert "milestone 1 not reached" in err.value.detail
+    assert "nodes expanded" in err.value.detail and "IK calls" in err.value.detail
+    assert elapsed < params.time_limit_s + 3.0  # at most one IK call beyond the limit
+
+
+def test_guide_path_of_another_robot_is_refused(g1, env):
+    q0, stance0, path = ladder_path(g1, env, 0)
+    other = GuidePath("h1", path.environment, path.joint_names, path.milestones)
+    with pytest.raises(SpecError) as err:
+        cs.search(g1, env, q0, stance0, other)
+    assert err.value.field == "guide_path.robot"
+    bad = GuidePath(path.robot, path.environment, path.joint_names, [np.zeros(3)])
+    with pytest.raises(SpecError) as err:
+        cs.search(g1, env, q0, stance0, bad)
+    assert err.value.field == "guide_path.milestones[0]"
