@@ -236,36 +236,6 @@ class ContactPathParams:
 
 
 @dataclass(frozen=True)
-class ContactSearchParams:
-    """Best-first multi-contact search (planner_node.contact_search)."""
-
-    time_limit_s: float = param(60.0, unit="s", min=0.1, description="wall-time limit of one search (all milestones)")
-    max_nodes: int = param(400, unit="-", min=1, description="node budget: contact sets expanded in one search")
-    milestone_tolerance: float = param(0.06, unit="m", min=0.0, description=(
-        "a node within this configuration distance of the targeted milestone reaches it"))
-    base_rotation_weight: float = param(0.3, unit="m/rad", min=0.0, description=(
-        "configuration distance: base rotation angle counted in metres"))
-    limb_weight: float = param(1.0, unit="-", min=0.0, description=(
-        "configuration distance: weight of the mean contact-surface position distance over the limbs"))
-    joint_weight: float = param(0.05, unit="m/rad", min=0.0, description=(
-        "configuration distance: RMS joint angle difference counted in metres"))
-    floating_cost_weight: float = param(1.0, unit="-", min=0.0, description=(
-        "node cost: weight of an added contact's distance to its position at the milestone"))
-    free_limb_cost: float = param(0.05, unit="m", min=0.0, description=(
-        "node cost: a limb without a contact counts this instead of its distance to its milestone place"))
-    min_contacts: int = param(3, unit="-", min=1, description=(
-        "contacts are removed only from sets with more than this (3: the quasi-static climbing gait)"))
-    ik_floating_weight: float = param(100.0, unit="1/m^2", min=0.0, description=(
-        "the search's IK: cost of the added contact's distance to its milestone place (0: pcik.floating_weight)"))
-    reach_margin: float = param(0.02, unit="m", min=0.0, description=(
-        "reach pruning: a surface farther than the limb's length plus this from its root is not tried"))
-    max_surfaces_per_limb: int = param(3, unit="-", min=0, description=(
-        "a free limb tries the surfaces within reach closest to its milestone place, at most this many (0: all)"))
-    key_resolution: float = param(0.02, unit="m", min=1.0e-4, description=(
-        "visited sets: hold centres rounded to this grid (limb -> surface + position)"))
-
-
-@dataclass(frozen=True)
 class PlannerSettings:
     planning: PlanningParams = group(PlanningParams, "search and planning margins")
     pcik: PCIKParams = group(PCIKParams, "physics-constrained IK")
@@ -273,7 +243,6 @@ class PlannerSettings:
     sampling: SamplingParams = group(SamplingParams, "ending-stance sampling around the seed hold")
     interpolation: InterpolationParams = group(InterpolationParams, "milestone interpolation and discretisation")
     timing: TimingParams = group(TimingParams, "time parameterisation of the plan")
-    contact_search: ContactSearchParams = group(ContactSearchParams, "best-first multi-contact search")
     guide_path: GuidePathParams = group(GuidePathParams, "free-flyer guide path (RRT-Connect)")
     contact_search: ContactSearchParams = group(ContactSearchParams, "best-first multi-contact search")
     contact_path: ContactPathParams = group(ContactPathParams, "generic contact-body paths (no primitive)")
