@@ -1,11 +1,13 @@
 #!/usr/bin/env python3
-"""Plan a ladder climb and execute it in the simulator: through the ROS 2 graph (default) or in
-one process.
+"""Plan a ladder climb (or a scene) and execute it in the simulator: through the ROS 2 graph
+(default) or in one process.
 
     scripts/climb.py --scenario default --robot g1 --rungs 2 --mode qp --out out/climb
                      [--graph processes|composed|inprocess] [--seed 0] [--no-bag] [--timeout 1200]
 
---scenario (alias --ladder): a name in config/ladders/ or a spec file (shared/specs/ladder_spec.md).
+--scenario (alias --ladder): a name in config/ladders/ or config/scenes/, or a scenario file
+(shared/specs/ladder_spec.md, scene_spec.md). A scene without a ladder needs the planner's
+strategy `search` (config/planner.yaml); with another strategy it exits with code 2 and says so.
 --graph processes (default): every node of config/graph.yaml in its own process (sim_bridge,
 controller, guide_path, contact_search, primitive_adaptation, climb_coordinator, recorder);
 composed: the bridge and the controller in one `sim_graph` process, the rest separate; inprocess:
@@ -40,7 +42,7 @@ GRAPHS = ("processes", "composed", "inprocess")
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", "--ladder", dest="scenario", default="default",
-                    help="scenario / ladder spec: name in config/ladders/ or a YAML file (--ladder: alias)")
+                    help="scenario: name in config/ladders/ or config/scenes/, or a YAML file (--ladder: alias)")
     ap.add_argument("--robot", default="g1", help="robot config name (config/robots/<name>.yaml)")
     ap.add_argument("--rungs", type=int, default=2, help="climbing cycles after the mount (feet end on rung N)")
     ap.add_argument("--mode", default="qp", help="controller mode: qp | compliance")
@@ -80,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     req = _request(args)
     summary = base_summary(req)
     try:
+        check_scene(args.scenario, summary)
         check_request(req) if args.graph != "inprocess" else None
     except SpecError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -95,6 +98,25 @@ def main(argv: list[str] | None = None) -> int:
         summary["failure_reason"] = str(exc)
         print(json.dumps(summary))
         return 2 if isinstance(exc, SpecError) else 1
+
+
+def check_scene(source: str, summary: dict) -> None:
+    """Add a scene's summary fields (scene_spec.md "Results", nothing reached yet) and refuse a
+    scene without a ladder unless the planner's strategy is `search` (SpecError)."""
+    from climb_core.ladder import load_scenario
+    from climb_core.scene import require_search_strategy
+
+    scenario = load_scenario(source)
+    if scenario.scene is None:
+        return
+    summary.update(scene=scenario.name, contacts_used=[])
+    if scenario.scene.goal is not None:
+        summary.update(goal_reached=False, goal_distance_m=None)
+    if scenario.ladder is None:
+        from planner_node.settings import load_settings
+
+        summary.update(rungs_requested=0, rungs_reached=0)
+        require_search_strategy(scenario, load_settings().planning.strategy)
 
 
 # ------------------------------------------------------------------------------ in process

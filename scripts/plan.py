@@ -1,12 +1,14 @@
 #!/usr/bin/env python3
-"""Plan a ladder climb (motion primitive adaptation + multi-step search), print the JSON summary.
+"""Plan a ladder climb or a scene (motion primitive adaptation + multi-step search), print the JSON summary.
 
-    scripts/plan.py --ladder default --robot g1 --steps 2 [--timeout 120] [--seed 0] [--out plan.json]
+    scripts/plan.py --scenario default --robot g1 --steps 2 [--timeout 120] [--seed 0] [--out plan.json]
 
---ladder is a name in config/ladders/ or a ladder spec file (shared/specs/ladder_spec.md). The
-last line on standard output is one JSON object (ladder_spec.md "Results"); a malformed spec or
-option prints `error: <field>: <rule>` on standard error and exits with code 2; a climb that could
-not be planned exits with 1 (the summary's failure_reason names the constraint that stopped it).
+--scenario (alias --ladder) is a name in config/ladders/ or config/scenes/, or a scenario file
+(shared/specs/ladder_spec.md, scene_spec.md). The last line on standard output is one JSON object
+(ladder_spec.md "Results"; a scene adds scene, goal_reached, goal_distance_m, contacts_used); a
+malformed spec or option, or a scene without a ladder with a strategy other than `search`, prints
+`error: <field>: <rule>` on standard error and exits with code 2; a climb that could not be
+planned exits with 1 (the summary's failure_reason names the constraint that stopped it).
 """
 from __future__ import annotations
 
@@ -24,7 +26,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--ladder", default="default", help="ladder spec: name in config/ladders/ or a YAML file")
+    ap.add_argument("--scenario", "--ladder", dest="scenario", default="default",
+                    help="scenario: name in config/ladders/ or config/scenes/, or a YAML file (--ladder: alias)")
     ap.add_argument("--robot", default="g1", help="robot config name (config/robots/<name>.yaml)")
     ap.add_argument("--steps", type=int, default=2, help="climbing cycles after the mount (feet end on rung N)")
     ap.add_argument("--timeout", type=float, default=None, help="planning wall-time limit [s] (default: config)")
@@ -39,9 +42,30 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def summary_base(args: argparse.Namespace) -> dict:
-    return {"success": False, "failure_reason": "", "robot": args.robot, "ladder": args.ladder,
-            "rungs_requested": args.steps, "rungs_reached": 0, "plan_time_s": 0.0, "n_stances": 0,
-            "sim_time_s": 0.0, "fell": False, "control_tick_ms": None, "bag": ""}
+    summary = {"success": False, "failure_reason": "", "robot": args.robot, "ladder": args.scenario,
+               "rungs_requested": args.steps, "rungs_reached": 0, "plan_time_s": 0.0, "n_stances": 0,
+               "sim_time_s": 0.0, "fell": False, "control_tick_ms": None, "bag": ""}
+    summary.update(scene_base(args.scenario))
+    return summary
+
+
+def scene_base(source: str) -> dict:
+    """The scene fields of a summary before planning (nothing reached); {} for a ladder or a bad spec."""
+    from climb_core.errors import SpecError
+    from climb_core.ladder import load_scenario
+
+    try:
+        scenario = load_scenario(source)
+    except SpecError:
+        return {}
+    if scenario.scene is None:
+        return {}
+    out: dict = {"scene": scenario.name, "contacts_used": []}
+    if scenario.scene.goal is not None:
+        out.update(goal_reached=False, goal_distance_m=None)
+    if scenario.ladder is None:
+        out.update(rungs_requested=0)
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -73,7 +97,32 @@ def main(argv: list[str] | None = None) -> int:
     summary.update({k: v for k, v in s.items() if k not in summary})
     summary.update(extra)
     print(summary_line(summary))
-    return 0 if result.success else 1
+    return 0 if summary["success"] else 1
+
+
+def scene_fields(scenario, result) -> dict:
+    """The scene's summary fields (scene_spec.md "Results") of a plan result."""
+    import numpy as np
+
+    plan = result.plan
+    contacts: set[str] = set()
+    q_last = None
+    if plan is not None:
+        stances = [plan.initial_stance] + [t.target_stance for t in plan.transitions]
+        contacts = {h.env_surface for stance in stances for h in stance.holds}
+        q_last = plan.transitions[-1].path[-1] if plan.transitions else None
+    out: dict = {"scene": scenario.name, "contacts_used": sorted(contacts)}
+    goal = scenario.scene.goal
+    if goal is not None:
+        distance = None if q_last is None else float(np.linalg.norm(np.asarray(q_last[:3]) - goal.base_position))
+        out["goal_distance_m"] = None if distance is None else round(distance, 4)
+        out["goal_reached"] = bool(result.success and distance is not None and distance <= goal.tolerance)
+    if scenario.ladder is None:  # no rungs: success is reaching the goal
+        out.update(rungs_requested=0, rungs_reached=0, success=out["goal_reached"])
+        if result.success and not out["goal_reached"]:
+            out["failure_reason"] = (f"goal not reached: the plan ends with the base {out['goal_distance_m']} m "
+                                     f"from goal.base_position (tolerance {goal.tolerance} m)")
+    return out
 
 
 def run(args: argparse.Namespace):
@@ -83,6 +132,7 @@ def run(args: argparse.Namespace):
     from climb_core.environment import build_environment
     from climb_core.ladder import load_scenario
     from climb_core.robot import load_robot
+    from climb_core.scene import require_search_strategy
     from planner_node import plan_io
     from planner_node.climb_planner import plan_climb
     from planner_node.primitives import load_library
@@ -92,7 +142,8 @@ def run(args: argparse.Namespace):
     if args.strategy:
         settings = dataclasses.replace(settings, planning=dataclasses.replace(settings.planning,
                                                                               strategy=args.strategy))
-    scenario = load_scenario(args.ladder)
+    scenario = load_scenario(args.scenario)
+    require_search_strategy(scenario, settings.planning.strategy)
     env = build_environment(scenario)
     robot = load_robot(args.robot)
     library = load_library(robot.config.name, settings.planning.strategy, settings.planning.primitives_dir,
@@ -109,9 +160,11 @@ def run(args: argparse.Namespace):
     extra: dict = {"strategy": settings.planning.strategy}
     if args.descend and result.success:
         extra["descent_start_transition"] = int(result.stats["descent_start"])
+    if scenario.scene is not None:
+        extra.update(scene_fields(scenario, result))
     if args.out and result.plan is not None:
         path = plan_io.save_plan(args.out, result.plan, {
-            "ladder": args.ladder, "robot": args.robot, "steps": args.steps, "seed": args.seed,
+            "ladder": args.scenario, "robot": args.robot, "steps": args.steps, "seed": args.seed,
             "summary": result.summary(), "subtasks": result.subtasks})
         extra["plan_file"] = str(path)
     if args.verify and result.plan is not None:

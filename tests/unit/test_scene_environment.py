@@ -2,7 +2,11 @@
 scenes, the start pose, G1 standing collision-free at each shipped scene's start and goal."""
 from __future__ import annotations
 
+import json
 import math
+import pathlib
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -12,6 +16,7 @@ from climb_core.environment import ROLES, build_environment
 from climb_core.errors import SpecError
 from climb_core.ladder import load_scenario, parse_scenario
 from climb_core.robot import load_robot
+from climb_core.scene import require_search_strategy
 
 SCENES = ("car_ingress", "narrow_passage", "stairs_handrail")
 #: [m] smallest robot-environment clearance accepted for G1 standing (its knee hulls are 0.033 m
@@ -172,3 +177,26 @@ def test_g1_stands_collision_free_at_the_start_and_at_the_goal(g1, name):
     q_goal[:3] = (goal.base_position[0], goal.base_position[1], top + q0[2])
     clearance, pair = _environment_clearance(c, q_goal, support)
     assert clearance > CLEARANCE, (clearance, pair)
+
+
+def test_a_scene_without_a_ladder_needs_the_search_strategy():
+    require_search_strategy(load_scenario("default"), "forward")  # ladders: every strategy
+    require_search_strategy(load_scenario("narrow_passage"), "search")
+    with pytest.raises(SpecError) as info:
+        require_search_strategy(load_scenario("narrow_passage"), "forward")
+    assert info.value.field == "strategy"
+    assert "strategy 'search' needed for a scene without a ladder" in info.value.rule
+
+
+def test_plan_script_exits_2_with_the_reason_and_the_scene_fields():
+    """scripts/plan.py --scenario <scene> with a ladder strategy: exit code 2, the reason on standard
+    error (no traceback), the summary with the scene's fields as the last line."""
+    root = pathlib.Path(__file__).resolve().parents[2]
+    run = subprocess.run([sys.executable, str(root / "scripts" / "plan.py"), "--scenario", "narrow_passage",
+                          "--strategy", "forward"], capture_output=True, text=True, timeout=120, cwd=root)
+    assert run.returncode == 2, run.stderr
+    assert "strategy 'search' needed for a scene without a ladder" in run.stderr and "Traceback" not in run.stderr
+    summary = json.loads(run.stdout.strip().splitlines()[-1])
+    assert summary["success"] is False and summary["failure_reason"].startswith("spec: strategy:")
+    assert (summary["scene"], summary["rungs_requested"], summary["rungs_reached"]) == ("narrow_passage", 0, 0)
+    assert summary["goal_reached"] is False and summary["contacts_used"] == []

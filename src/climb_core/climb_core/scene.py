@@ -44,7 +44,7 @@ from .ladder import (_REQUIRED, FRICTION, POSITIVE_M, Block, Custom, Enum, Ladde
 
 __all__ = ["SURFACE_SHAPES", "CONTACT_LIMBS", "BILATERAL_MAX_WIDTH", "DEFAULT_SURFACE_FRICTION",
            "DEFAULT_GROUND_FRICTION", "SurfaceSpec", "StartSpec", "GoalSpec", "SceneSpec", "parse_scene",
-           "scene_to_dict", "ladder_surface_names"]
+           "scene_to_dict", "ladder_surface_names", "SEARCH_STRATEGY", "require_search_strategy"]
 
 SURFACE_SHAPES = ("box", "cylinder")
 #: Limb types that may be placed on a surface.
@@ -258,3 +258,15 @@ def scene_to_dict(scene: SceneSpec) -> dict[str, Any]:
     if scene.goal is not None:
         out["goal"] = {"base_position": list(scene.goal.base_position), "tolerance": scene.goal.tolerance}
     return out
+
+
+#: The planning strategy that plans scenes without a ladder (guide path + contact search).
+SEARCH_STRATEGY = "search"
+
+
+def require_search_strategy(scenario: Any, strategy: str) -> None:
+    """SpecError('strategy', ...) when a scenario without a ladder is to be planned by a strategy
+    other than ``search`` (the primitive libraries only climb ladders)."""
+    if getattr(scenario, "ladder", None) is None and strategy != SEARCH_STRATEGY:
+        raise SpecError("strategy", f"strategy {SEARCH_STRATEGY!r} needed for a scene without a ladder "
+                                    f"(scenario {getattr(scenario, 'name', '')!r}, strategy {strategy!r})")
