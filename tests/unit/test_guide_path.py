@@ -78,45 +78,6 @@ class SurfaceEnvironment(Environment):
         return [s for s in self.surfaces.values() if limb_type in self._use.get(s.name, ())]
 
 
-def narrow_passage(base: Environment) -> tuple[Environment, np.ndarray, float]:
-    """Paper Fig. 3 after the scene brief: a ramp (10 deg), a landing, two walls 0.7 m apart the
-    hands may push on, a 0.33 m step; the goal standing on the step."""
-    ramp_pitch = -10.0
-    surfaces = [
-        _box("ramp", (1.0, 1.2, 0.1), (1.0, 0.0, 0.087 - 0.05 / math.cos(math.radians(10.0))), (0.0, ramp_pitch, 0.0)),
-        _box("landing", (0.8, 1.2, 0.174), (1.9, 0.0, 0.087)),
-        _box("wall_left", (2.0, 0.3, 1.4), (2.2, 0.5, 0.7)),
-        _box("wall_right", (2.0, 0.3, 1.4), (2.2, -0.5, 0.7)),
-        _box("step", (1.0, 1.2, 0.504), (2.8, 0.0, 0.252)),
-    ]
-    use = {"ramp": ("foot",), "landing": ("foot",), "step": ("foot", "hand"),
-           "wall_left": ("hand",), "wall_right": ("hand",)}
-    env = SurfaceEnvironment("test_narrow_passage", base, surfaces, use)
-    return env, np.array([2.9, 0.0, 0.504 + 0.78]), 0.15
-
-
-def stairs_handrail(base: Environment) -> tuple[Environment, np.ndarray, float]:
-    """Four steps (rise 0.15 m, run 0.30 m), handrails 0.9 m above the nose line, a landing."""
-    surfaces, use = [], {}
-    for k in range(1, 5):
-        top = 0.15 * k
-        surfaces.append(_box(f"step_{k}", (0.30, 1.0, top), (0.6 + 0.3 * (k - 1) + 0.15, 0.0, 0.5 * top)))
-        use[f"step_{k}"] = ("foot",)
-    surfaces.append(_box("landing", (1.2, 1.0, 0.6), (1.8 + 0.6, 0.0, 0.3)))
-    use["landing"] = ("foot",)
-    slope = math.atan2(0.15, 0.30)
-    for side, y in (("left", 0.55), ("right", -0.55)):
-        T = np.eye(4)
-        T[:3, :3] = rpy_deg_to_matrix((0.0, -math.degrees(slope), 0.0))
-        T[:3, 3] = (1.2, y, 0.3 + 0.9)
-        length = 1.6 / math.cos(slope)
-        surfaces.append(Surface(f"rail_{side}", "rail", "cylinder", T, radius=0.02, length=length,
-                                half_extents=np.array([0.5 * length, 0.02, 0.02]), friction=0.6))
-        use[f"rail_{side}"] = ("hand",)
-    env = SurfaceEnvironment("test_stairs_handrail", base, surfaces, use)
-    return env, np.array([2.4, 0.0, 0.6 + 0.78]), 0.15
-
-
 def assert_valid_path(result: gp.GuideResult, robot, env, q_start, goal, tolerance, params) -> None:
     path = result.path
     assert path.robot == robot.config.name and path.joint_names == list(robot.joint_names)
@@ -270,14 +231,24 @@ def test_start_in_collision_and_bad_input(robot, ladder, params, q_standing):
     assert spec.value.field == "guide_path.goals[0].tolerance"
 
 
-@pytest.mark.parametrize("scene", [narrow_passage, stairs_handrail])
-def test_scenes_from_surfaces(robot, ladder, params, scene):
-    env, goal, tolerance = scene(ladder)
-    q0 = robot.q_reference()
-    result, elapsed = _plan(robot, env, q0, [gp.Goal(goal, tolerance)], params)
-    print(f"\nguide path {env.name}: {elapsed:.3f} s, {len(result.path.milestones)} milestones, "
-          f"{result.stats.as_dict()}")
+@pytest.mark.parametrize("scene", ["narrow_passage", "stairs_handrail", "car_ingress"])
+def test_scenes(robot, params, scene):
+    """The shipped scenes (config/scenes/): from the start pose to the scene's goal."""
+    env = build_environment(scene)
+    q0 = gp.start_configuration(robot, env)
+    gp._planner(robot, env, params)  # built once (collision model, limb lengths): not timed
+    t = time.perf_counter()
+    result = gp.plan_for_environment(robot, env, q0, params=params, seed=0, time_limit_s=TIME_LIMIT_S)
+    elapsed = time.perf_counter() - t
+    print(f"\nguide path {scene}: {elapsed:.3f} s, {len(result.path.milestones)} milestones, {result.stats.as_dict()}")
     assert elapsed < TIME_LIMIT_S
-    assert_valid_path(result, robot, env, q0, goal, tolerance, params)
-    again, _ = _plan(robot, env, q0, [gp.Goal(goal, tolerance)], params)
+    goal = np.asarray(env.goal.base_position)
+    assert_valid_path(result, robot, env, q0, goal, env.goal.tolerance, params)
+    # the goal is reached standing on a foot surface of the scene, feet supported
+    last = gp._planner(robot, env, params).support(result.states[-1])
+    foot_surfaces = {x.name for x in gp.contact_surfaces(env, "foot")}
+    assert {"left_foot", "right_foot"} <= set(last.limbs)
+    assert last.limbs["left_foot"] in foot_surfaces and last.limbs["left_foot"] != "ground"
+    again = gp.plan_for_environment(robot, env, q0, params=params, seed=0, time_limit_s=TIME_LIMIT_S)
+    assert len(again.path.milestones) == len(result.path.milestones)
     assert all(np.array_equal(a, b) for a, b in zip(again.path.milestones, result.path.milestones))

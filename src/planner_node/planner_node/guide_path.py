@@ -786,7 +786,7 @@ def plan_for_environment(robot: Any, env: Any, q_start: np.ndarray, rungs: int |
         if position is None and isinstance(goal, dict):
             position = goal.get("base_position")
         tol = getattr(goal, "tolerance", None) or (goal.get("tolerance") if isinstance(goal, dict) else None)
-        goals = [Goal(_vec3(position, "goal.base_position"), float(tol))]
+        goals = [Goal(_vec3(position, "goal.base_position"), float(tol), posture="standing")]
     elif rungs is not None:
         goals = ladder_goals(robot, env, int(rungs), tolerance)
     else:
@@ -794,17 +794,31 @@ def plan_for_environment(robot: Any, env: Any, q_start: np.ndarray, rungs: int |
     return plan_guide_path_through(robot, env, q_start, goals, params, seed, time_limit_s)
 
 
+def start_configuration(robot: Any, env: Any) -> np.ndarray:
+    """The robot's reference configuration standing at the scene's ``start_pose`` (x, y, yaw)."""
+    pose = getattr(env, "start_pose", None)
+    q = robot.q_reference().copy()
+    if pose is None:
+        return q
+    R = pin.rpy.rpyToMatrix(0.0, 0.0, math.radians(float(pose.yaw_deg)))
+    q[:3] = R @ q[:3] + np.array([float(pose.x), float(pose.y), 0.0])
+    q[3:7] = pin.Quaternion(R).coeffs()
+    return q
+
+
 def benchmark(scenario: str = "default", rungs: int = 3, robot_name: str = "g1", seed: int = 0,
               repeats: int = 3) -> dict:
     """Wall time of the guide path (the best of ``repeats``, planner built beforehand) and its
-    figures, for scripts/bench_planner.py: start = the ``standing`` fixture (or the scene's start)."""
+    figures, for scripts/bench_planner.py: start = the ``standing`` fixture on a ladder, the
+    scene's start pose (:func:`start_configuration`) when the scene has a goal."""
     from climb_core import fixtures
     from climb_core.environment import build_environment
     from climb_core.robot import load_robot
 
     robot = load_robot(robot_name)
     env = build_environment(scenario)
-    _, q0 = fixtures.get("standing", robot, env)
+    q0 = start_configuration(robot, env) if getattr(env, "goal", None) is not None else \
+        fixtures.get("standing", robot, env)[1]
     _planner(robot, env, load_settings().guide_path)
     times, result = [], None
     for _ in range(repeats):
