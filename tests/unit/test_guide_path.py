@@ -252,3 +252,22 @@ def test_scenes(robot, params, scene):
     again = gp.plan_for_environment(robot, env, q0, params=params, seed=0, time_limit_s=TIME_LIMIT_S)
     assert len(again.path.milestones) == len(result.path.milestones)
     assert all(np.array_equal(a, b) for a, b in zip(again.path.milestones, result.path.milestones))
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda d: d["postures"]["standing"]["joints"].update(not_a_joint=0.1), "postures.standing.joints.not_a_joint"),
+    (lambda d: d["postures"]["climbing"].update(root_pitch="x"), "postures.climbing.root_pitch"),
+    (lambda d: d.pop("body_links"), "body_links"),
+    (lambda d: d.update(order=["standing", "climbing"]), "order"),
+])
+def test_postures_file_rules(robot, params, tmp_path, edit, field):
+    import dataclasses
+
+    import yaml
+
+    doc = yaml.safe_load(gp.postures_path("g1", params).read_text())
+    edit(doc)
+    (tmp_path / "g1.yaml").write_text(yaml.safe_dump(doc))
+    with pytest.raises(SpecError) as err:
+        gp.load_reference_postures(robot, dataclasses.replace(params, postures_dir=str(tmp_path)))
+    assert err.value.field == f"guide_postures/g1.yaml.{field}"

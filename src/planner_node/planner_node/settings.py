@@ -153,12 +153,14 @@ class ContactSearchParams:
 
     time_limit_s: float = param(60.0, unit="s", min=0.1, description="wall-time limit of one search (all milestones)")
     max_nodes: int = param(400, unit="-", min=1, description="node budget: contact sets expanded in one search")
-    milestone_tolerance: float = param(0.06, unit="m", min=0.0, description=(
-        "a node within this configuration distance of the targeted milestone reaches it"))
+    milestone_tolerance: float = param(0.1, unit="m", min=0.0, description=(
+        "a node whose base (position + weighted rotation) is this close to an intermediate milestone's reaches it"))
+    goal_tolerance: float = param(0.08, unit="m", min=0.0, description=(
+        "a node within this configuration distance of the last milestone reaches it"))
     base_rotation_weight: float = param(0.3, unit="m/rad", min=0.0, description=(
         "configuration distance: base rotation angle counted in metres"))
     limb_weight: float = param(1.0, unit="-", min=0.0, description=(
-        "configuration distance: weight of the mean contact-surface position distance over the limbs"))
+        "configuration distance: weight of the summed contact-surface position distances of the limbs"))
     joint_weight: float = param(0.05, unit="m/rad", min=0.0, description=(
         "configuration distance: RMS joint angle difference counted in metres"))
     floating_cost_weight: float = param(1.0, unit="-", min=0.0, description=(
@@ -182,11 +184,7 @@ class GuidePathParams:
     """Free-flyer guide path (planner_node.guide_path): RRT-Connect, sampler bias, projection."""
 
     postures_dir: str = param("config/guide_postures", unit="-", description=(
-        "reference postures, <dir>/<robot>.yaml (relative to the project root)"))
-    body_links: tuple[str, ...] = param((
-        "pelvis_contour_link", "torso_link", "head_link", "logo_link", "left_hip_pitch_link", "right_hip_pitch_link",
-        "left_hip_roll_link", "right_hip_roll_link", "left_shoulder_pitch_link", "right_shoulder_pitch_link"),
-        unit="-", description="links of the free-flyer body checked for collision (limbs are left to the contact search)")
+        "reference postures and free-flyer body links, <dir>/<robot>.yaml (relative to the project root)"))
     body_clearance: float = param(0.02, unit="m", min=0.0, description="least signed distance body - environment")
     reach_fraction: float = param(0.92, unit="-", min=0.1, max=1.0, description=(
         "a limb reaches a surface closer than this share of its length (G1 standing: hip - ground 0.68 m of 0.748 m)"))
