@@ -173,7 +173,8 @@ def plan_climb(robot: Any, env: Any, steps: int, *, library: PrimitiveLibrary | 
 
 @dataclass(frozen=True)
 class ContactStep:
-    """One stance change of a contact plan, adapted with a library primitive."""
+    """One stance change of a contact plan: adapted from a library primitive, or (``primitive``
+    None) a generic contact-body path (:mod:`planner_node.contact_path`)."""
 
     name: str
     kind: str  # limb | com | release
@@ -181,6 +182,7 @@ class ContactStep:
     limb: str
     hold: Any  # the new hold (limb), None otherwise
     q_end: np.ndarray  # the contact plan's transition configuration of the next stance
+    unload: tuple[str, ...] = ()  # generic CoM shift / release: limbs that must be removable at its end
 
 
 def _same_hold(a, b) -> bool:
@@ -189,74 +191,78 @@ def _same_hold(a, b) -> bool:
     return a.env_surface == b.env_surface and np.allclose(a.centre, b.centre, atol=1e-4)
 
 
+def _surface_kind(surface: str) -> str:
+    """The primitives' target surface name of an environment surface ("" when none fits)."""
+    if surface == "ground":
+        return "ground"
+    return "rung" if surface.startswith("rung_") else ""
+
+
 def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[ContactStep]:
-    """Sub-tasks for a contact plan: one per consecutive stance pair (SpecError when a pair
-    changes more than one hold, or no library primitive fits)."""
+    """Sub-tasks for a contact plan: one per consecutive stance pair (SpecError when a pair changes
+    more than one hold). A pair no library primitive fits (a surface other than the ground or a
+    rung, an empty library) gets a generic step (``primitive`` None). A released limb stays held
+    (the controller releases it when it moves next): its release is a CoM shift ending with the
+    limb removable, and its next placement moves it from that hold."""
     import dataclasses as dc
 
     from climb_core.contact import LIMBS
 
     if len(plan.stances) < 2 or len(plan.transition_configurations) != len(plan.stances):
         raise SpecError("contact_plan", "needs >= 2 stances and one transition configuration per stance")
-    steps = []
+    changes = []
     for i, (a, b) in enumerate(zip(plan.stances[:-1], plan.stances[1:])):
-        field_ = f"contact_plan.stances[{i + 1}]"
         changed = [limb for limb in LIMBS if not _same_hold(a.hold(limb), b.hold(limb))]
-        q_end = np.asarray(plan.transition_configurations[i + 1], dtype=float)
-        if not changed:
-            com = [p for p in library.primitives.values() if p.kind == "com"]
-            if not com:
-                raise SpecError(field_, "the library has no CoM primitive")
-            steps.append(ContactStep(f"com_{i}", "com", dc.replace(com[0], end_unload=()), "", None, q_end))
-            continue
         if len(changed) > 1:
-            raise SpecError(field_, f"one hold may change per transition, got {changed}")
-        limb = changed[0]
+            raise SpecError(f"contact_plan.stances[{i + 1}]", f"one hold may change per transition, got {changed}")
+        changes.append(changed[0] if changed else "")
+    steps = []
+    released: dict[str, Any] = {}  # limb -> hold released by the plan, still held until the limb moves
+    for i, (a, b) in enumerate(zip(plan.stances[:-1], plan.stances[1:])):
+        q_end = np.asarray(plan.transition_configurations[i + 1], dtype=float)
+        limb = changes[i]
+        nxt = changes[i + 1] if i + 1 < len(changes) else ""
+        unload_next = (nxt,) if nxt and (b.hold(nxt) is not None or nxt in released) else ()
+        if not limb:
+            com = [p for p in library.primitives.values() if p.kind == "com"]
+            prim = dc.replace(com[0], end_unload=()) if com else None
+            steps.append(ContactStep(f"com_{i}", "com", prim, "", None, q_end, () if com else unload_next))
+            continue
         new = b.hold(limb)
         if new is None:
-            steps.append(ContactStep(f"release_{limb}_{i}", "release", None, limb, None, q_end))
+            released[limb] = a.hold(limb)
+            steps.append(ContactStep(f"release_{limb}_{i}", "release", None, limb, None, q_end, (limb,)))
             continue
-        surface = "ground" if new.env_surface == "ground" else "rung"
-        want_type = "mount" if a.hold(limb) is None and limb in HANDS else None
-        cands = [p for p in library.primitives.values() if p.kind == "limb" and p.limb == limb
+        previous = a.hold(limb) or released.pop(limb, None)
+        surface = _surface_kind(new.env_surface)
+        want_type = "mount" if previous is None and limb in HANDS else None
+        cands = [p for p in library.primitives.values() if p.kind == "limb" and p.limb == limb and surface
                  and p.target.surface == surface and (want_type is None or p.type == want_type)]
-        if not cands:
-            cands = [p for p in library.primitives.values() if p.kind == "limb" and p.limb == limb]
-        if not cands:
-            raise SpecError(field_, f"no primitive in library {library.robot}/{library.strategy} moves {limb}")
-        prim = dc.replace(cands[-1], end_unload=(limb,))
-        steps.append(ContactStep(f"{prim.name}_{i}", "limb", prim, limb, new, q_end))
+        if not cands and surface:
+            cands = [p for p in library.primitives.values() if p.kind == "limb" and p.limb == limb
+                     and p.target.surface == surface]
+        prim = dc.replace(cands[-1], end_unload=(limb,)) if cands else None
+        name = prim.name if prim is not None else f"generic_{limb}"
+        steps.append(ContactStep(f"{name}_{i}", "limb", prim, limb, new, q_end))
     return steps
 
 
 def _adapt_contact_step(ctx: AdaptContext, step: ContactStep, state: ClimbState, attempt: int,
                         rng: np.random.Generator):
     from . import adapt as A
+    from . import contact_path
 
+    try:
+        if step.primitive is None and step.kind == "limb":
+            return contact_path.transfer_step(ctx, state, step.limb, step.hold, step.q_end, attempt, rng, step.name)
+        if step.primitive is None:  # a generic CoM shift, or a release (the CoM onto the other holds)
+            return contact_path.com_step(ctx, state, step.q_end, step.unload, attempt, rng, step.name)
+    except SpecError as exc:
+        return msp.AttemptFailure(f"hold:{exc.field}", f"{step.name}: {exc}", fatal=True)
     if step.kind == "limb":
         out = A._adapt_limb(ctx, step.primitive, state, attempt, rng, hold=step.hold, q_end_seed=step.q_end)
-    elif step.kind == "com":
+    else:
         out = A._adapt_com(ctx, step.primitive, state, attempt, rng, q_end_seed=step.q_end)
-    else:  # release: the limb leaves its hold, the others keep theirs
-        old = state.stance.hold(step.limb)
-        stance = state.stance.without(step.limb)
-        q_bar = step.q_end if attempt == 0 else A._perturb(ctx, step.q_end, attempt, rng)
-        proj = A.project(ctx, q_bar, stance, rng)
-        if proj.q is None:
-            return msp.AttemptFailure(proj.failure, f"{step.name}: end configuration")
-        path, _, failure = A.build_path(ctx, [state.q, proj.q], stance, step.limb, [old])
-        if path is None:
-            return msp.AttemptFailure(failure, f"{step.name}: path")
-        from climb_core.contact import Transition
-
-        tp = ctx.settings.timing
-        from . import interpolation as interp
-
-        times = interp.time_parameterize(ctx.robot.model, path, tp.max_joint_speed, tp.max_base_speed,
-                                         tp.max_base_angular_speed, tp.min_transition_duration, tp.ramp_fraction)
-        tr = Transition(primitive="release", moving_limb=step.limb, stance=stance, target_stance=stance,
-                        times=times, path=np.array(path))
-        return msp.Step(ClimbState(proj.q, stance), Segment(step.name, tr, None, attempt))
     if isinstance(out, msp.Step):
         seg = out.segment
         return msp.Step(out.state, Segment(step.name, seg.transition, seg.hold, seg.attempt))
@@ -268,13 +274,22 @@ def plan_from_contact_plan(robot: Any, env: Any, contact_plan: ContactPlan, *,
                            seed: int | None = None, timeout_s: float | None = None,
                            feasibility_cfg: feasibility.FeasibilityConfig | None = None,
                            on_progress: Callable[[int, int, int], None] | None = None) -> ClimbPlanResult:
-    """Whole-body paths for a contact plan's stance sequence (each transition adapted from the
-    library primitive of that limb, ending at the plan's hold, seeded by its configuration)."""
+    """Whole-body paths for a contact plan's stance sequence: each transition adapted from the
+    library primitive of that limb (ending at the plan's hold, seeded by its configuration), or a
+    generic contact-body path where none fits (:func:`contact_plan_steps`). Without a library on
+    disk every step is generic; ``library=contact_path.empty_library(robot)`` forces that."""
+    from . import contact_path
+
     t0, c0 = time.perf_counter(), time.process_time()
     settings = settings or load_settings()
     p = settings.planning
     if library is None:
-        library = load_library(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
+        try:
+            library = load_library(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
+        except SpecError as exc:
+            if exc.field != "primitives":  # a malformed library is an error, a missing one is not
+                raise
+            library = contact_path.empty_library(robot)
     if list(contact_plan.joint_names) and list(contact_plan.joint_names) != list(robot.joint_names):
         raise SpecError("contact_plan.joint_names", f"must be the joints of robot {robot.config.name}")
     steps = contact_plan_steps(library, contact_plan)

@@ -1,0 +1,220 @@
+"""Generic contact-body paths: a stance change of a contact plan without a motion primitive.
+
+The contact search (multicontact_darpa_tasks.txt III-C) gives a stance sequence whose consecutive
+stances differ by one hold, each with a transition configuration. Where no library primitive
+fits a change, this module builds the whole-body path the way ladder_climbing_drc_hubo.txt builds
+its primitives' paths (III-C, Algorithm 1 and the projected interpolation):
+
+- **limb placed** (:func:`transfer_step`): Cartesian cues of the moving limb - lifted off its hold
+  along the hold's normal by ``lift_clearance`` (a grasp: toward the body), carried to a point
+  ``carry_backoff`` in front of the approach point, then brought onto the new hold along its
+  normal from ``approach_distance``. Each cue becomes a whole-body way-point: the
+  physics-constrained IK with the kept holds as regular contacts and the cue as a soft pose of the
+  moving limb, seeded on the joint-space line between the two transition configurations, then
+  retracted from collisions (:func:`planner_node.adapt._retract`). The path between the way-points
+  is projected onto the kept stance's contact manifold and fine-checked
+  (:func:`planner_node.adapt.build_path`); the end configuration has the limb on its new hold.
+- **CoM shift** (:func:`com_step`, also a contact plan's *release*): all holds kept, the end
+  configuration in equilibrium without the limb that moves next. The controller's FSM releases
+  that limb when it executes the next transition (select -> remove -> unload), as for ladder plans.
+
+Both return an :class:`~planner_node.msp.Step` (or an AttemptFailure naming the constraint) whose
+Transition the FSM executes: ``place_foot`` / ``place_hand`` with the moving limb (the FSM's
+remove / add rows by limb kind), ``com_to_foot`` / ``com_to_centre`` without (its move_com row).
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from climb_core.contact import FEET, HANDS, Hold, Stance
+from climb_core.errors import SpecError
+
+from . import adapt as A
+from . import pcik
+from .msp import AttemptFailure, Step
+from .primitives import PrimitiveLibrary
+
+
+def empty_library(robot) -> PrimitiveLibrary:
+    """A library without primitives for ``robot``: every contact-plan step takes a generic path."""
+    return PrimitiveLibrary(robot=robot.config.name, strategy="none", facing="", reference_ladder={},
+                            joint_names=tuple(robot.joint_names), sequences={}, primitives={}, holds={},
+                            mount_height=0.0, hands_above_feet_height=0.0)
+
+
+def transfer_name(limb: str) -> str:
+    """The Transition.primitive of a limb placement (the FSM distinguishes hands and feet)."""
+    return "place_hand" if limb in HANDS else "place_foot"
+
+
+def com_name(unload: Sequence[str]) -> str:
+    """The Transition.primitive of a CoM shift (toward the feet when a foot moves next)."""
+    return "com_to_foot" if unload and unload[0] in FEET else "com_to_centre"
+
+
+# --------------------------------------------------------------------------------------------
+# Cartesian cues of the moving limb
+
+
+def hold_direction(ctx: A.AdaptContext, hold: Hold, q: np.ndarray) -> np.ndarray:
+    """Unit direction [world] a limb leaves / approaches ``hold`` along: the mean normal of a
+    unilateral hold (toward the robot); for a grasp (normals all around the bar) the palm normal
+    backward, -z of the limb's surface frame at ``q`` (z points out of the palm toward the bar,
+    climb_core.holds)."""
+    if not hold.bilateral:
+        n = hold.normals.mean(axis=0)
+        if np.linalg.norm(n) > 0.5:
+            return n / np.linalg.norm(n)
+    return -np.asarray(ctx.robot.T_world_surface(hold.limb, q))[:3, 2]
+
+
+def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: np.ndarray,
+              q_e: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """World poses [4x4] of the moving limb's surface at the way-points (lift-off, carry, approach)
+    and each one's path fraction in (0, 1) (arc length of the cue polyline from q_s to q_e)."""
+    p = ctx.settings.contact_path
+    robot = ctx.robot
+    T_s = np.asarray(robot.T_world_surface(limb, q_s))
+    T_e = np.asarray(robot.T_world_surface(limb, q_e))
+    p_s, p_e = T_s[:3, 3], T_e[:3, 3]
+    n_e = hold_direction(ctx, new, q_e)
+    approach = p_e + p.approach_distance * n_e
+    lift = p_s + p.lift_clearance * hold_direction(ctx, old, q_s) if old is not None else None
+    back = p_s - p_e  # horizontal, toward where the limb comes from (across a bar: no sideways swing)
+    back[2] = 0.0
+    target = ctx.env.surfaces.get(new.env_surface)
+    if target is not None and target.shape == "cylinder":
+        back = back - float(back @ target.axis) * target.axis
+    nb = float(np.linalg.norm(back))
+    front = approach + (p.carry_backoff * back / nb if nb > 1e-6 else np.zeros(3))
+    start = lift if lift is not None else p_s
+    k = p.carry_waypoints
+    carry = [start + (i / k) * (front - start) for i in range(1, k + 1)]
+    points = ([lift] if lift is not None else []) + carry + [approach]
+    rots = []
+    d_rot = pin.log3(T_s[:3, :3].T @ T_e[:3, :3])
+    poly = [p_s] + points + [p_e]
+    length = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(np.array(poly), axis=0), axis=1))])
+    s = length[1:-1] / max(float(length[-1]), 1e-9)
+    for i, point in enumerate(points):
+        if lift is not None and i == 0:
+            w = 0.0
+        elif i == len(points) - 1:
+            w = 1.0
+        else:
+            w = float(s[i])
+        R = T_s[:3, :3] @ pin.exp3(w * d_rot)
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, point
+        rots.append(T)
+    return rots, s
+
+
+def lift_height(ctx: A.AdaptContext, path: Sequence[np.ndarray], limb: str, old: Hold, q_s: np.ndarray) -> float:
+    """[m] how far the moving limb's surface frame gets from its start along the old hold's
+    direction (:func:`hold_direction`), at most, over the path."""
+    n = hold_direction(ctx, old, q_s)
+    p0 = np.asarray(ctx.robot.T_world_surface(limb, q_s))[:3, 3]
+    return max(float((np.asarray(ctx.robot.T_world_surface(limb, q))[:3, 3] - p0) @ n) for q in path)
+
+
+# --------------------------------------------------------------------------------------------
+# steps
+
+
+def _seed(ctx: A.AdaptContext, q: np.ndarray, attempt: int, rng: np.random.Generator) -> np.ndarray:
+    return q if attempt == 0 else A._perturb(ctx, q, attempt, rng)
+
+
+def transfer_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, hold: Hold, q_end: np.ndarray,
+                  attempt: int, rng: np.random.Generator, name: str = "") -> Step | AttemptFailure:
+    """Move ``limb`` from its hold in ``state`` (or from free) onto ``hold`` (see the module
+    docstring); ``q_end``: the contact plan's transition configuration of the new stance (seed of
+    the end configuration; attempts > 0 perturb it and the way-point seeds)."""
+    if limb not in ctx.robot.config.limbs:
+        raise SpecError(f"{name or 'transfer'}.limb", f"the robot has no limb {limb!r}")
+    name = name or f"{transfer_name(limb)}_{limb}"
+    old = state.stance.hold(limb)
+    sigma_e = Stance(state.stance.with_hold(hold).holds, name=name)
+    sigma_t = Stance(tuple(h for h in sigma_e.holds if h.limb != limb), name=f"{name}:transfer")
+    # end: the limb on its new hold, the kept holds able to carry the robot without it
+    proj = A.project(ctx, _seed(ctx, np.asarray(q_end, dtype=float), attempt, rng), sigma_e, rng, unload=(limb,))
+    if proj.q is None:
+        return AttemptFailure(proj.failure, f"{name}: end configuration ({dict(proj.failures)})")
+    q_s, q_e = np.asarray(state.q, dtype=float), proj.q
+    zone = [old, hold]
+    cues, fractions = limb_cues(ctx, limb, old, hold, q_s, q_e)
+    milestones = [q_s]
+    for cue, s in zip(cues, fractions):
+        q_bar = _seed(ctx, pin.interpolate(ctx.robot.model, q_s, q_e, float(s)), attempt, rng)
+        q_w = waypoint(ctx, milestones[-1], q_bar, sigma_t, limb, zone, cue, rng)
+        if q_w is None:
+            res = ctx.check(q_bar, sigma_t, A.zone_exclusions(ctx, q_bar, limb, zone))
+            return AttemptFailure(A.failure_name(res) or f"reach:{limb}", f"{name}: way-point at s = {s:.2f}")
+        milestones.append(q_w)
+    milestones.append(q_e)
+    path, _, failure = A.build_path(ctx, milestones, sigma_t, limb, zone)
+    if path is None:
+        return AttemptFailure(failure, f"{name}: path")
+    clearance = ctx.settings.contact_path.lift_clearance
+    if old is not None and lift_height(ctx, path, limb, old, q_s) < clearance:
+        return AttemptFailure(f"lift:{limb}", f"{name}: the limb does not leave its hold by {clearance} m")
+    transition = _transition(ctx, transfer_name(limb), limb, sigma_t, sigma_e, path)
+    return Step(A.ClimbState(q_e, sigma_e), A.Segment(name, transition, hold, attempt))
+
+
+def waypoint(ctx: A.AdaptContext, q_seed: np.ndarray, q_bar: np.ndarray, stance: Stance, limb: str,
+             zone: Sequence[Hold | None], cue: np.ndarray, rng: np.random.Generator) -> np.ndarray | None:
+    """A whole-body way-point: the physics-constrained IK from ``q_seed`` (the previous way-point:
+    the limb travels on from where it is) with ``stance``'s holds regular and ``cue`` (4x4) a soft
+    pose of ``limb``, posture pulled toward ``q_bar``; polished onto the stance and checked. A
+    result that fails the check is retracted from there without the cue (the limb stays near it),
+    then, failing that, from ``q_bar``. None when nothing passes the check."""
+    contacts = pcik.contacts_from_stance(stance) + [pcik.ContactSpec(limb, pcik.ZERO_FORCE, pose=cue, soft=True)]
+    ctx.stats.pcik_calls += 1
+    pr = pcik.solve(ctx.robot, ctx.env, q_seed, contacts, q_target=q_bar, params=ctx.settings.pcik,
+                    feasibility_cfg=ctx.check_cfg, extra_exclusions=A.zone_exclusions(ctx, q_seed, limb, zone),
+                    self_margin=ctx.settings.planning.self_collision_margin, final_check=False)
+    if not [v for v in pr.violated if v != f"reach:{limb}"]:  # the kept holds are made
+        q_c = A.ContactProjector(ctx, stance, pr.q)(pr.q)
+        if q_c is not None:
+            if ctx.check(q_c, stance, A.zone_exclusions(ctx, q_c, limb, zone)).feasible:
+                ctx.stats.cue_retractions += 1
+                return q_c
+            q_r = A._retract(ctx, q_c, stance, limb, zone, q_target=q_c, rng=rng)
+            if q_r is not None:
+                return q_r
+    return A._retract(ctx, q_bar, stance, limb, zone, q_target=q_bar, rng=rng)
+
+
+def com_step(ctx: A.AdaptContext, state: A.ClimbState, q_end: np.ndarray, unload: Sequence[str], attempt: int,
+             rng: np.random.Generator, name: str = "") -> Step | AttemptFailure:
+    """Shift the CoM with every hold of ``state`` kept, to a configuration near ``q_end`` that is
+    also in equilibrium without each limb of ``unload`` (the limb released next)."""
+    stance = state.stance
+    unload = tuple(u for u in unload if u and stance.hold(u) is not None)
+    name = name or com_name(unload)
+    proj = A.project(ctx, _seed(ctx, np.asarray(q_end, dtype=float), attempt, rng), stance, rng, unload=unload)
+    if proj.q is None:
+        return AttemptFailure(proj.failure, f"{name}: end configuration ({dict(proj.failures)})")
+    path, _, failure = A.build_path(ctx, [np.asarray(state.q, dtype=float), proj.q], stance, "", ())
+    if path is None:
+        return AttemptFailure(failure, f"{name}: path")
+    transition = _transition(ctx, com_name(unload), "", stance, stance, path)
+    return Step(A.ClimbState(proj.q, stance), A.Segment(name, transition, None, attempt))
+
+
+def _transition(ctx: A.AdaptContext, primitive: str, limb: str, stance: Stance, target: Stance,
+                path: list[np.ndarray]):
+    from climb_core.contact import Transition
+
+    from . import interpolation as interp
+
+    tp = ctx.settings.timing
+    times = interp.time_parameterize(ctx.robot.model, path, tp.max_joint_speed, tp.max_base_speed,
+                                     tp.max_base_angular_speed, tp.min_transition_duration, tp.ramp_fraction)
+    return Transition(primitive=primitive, moving_limb=limb, stance=stance, target_stance=target, times=times,
+                      path=np.array(path))

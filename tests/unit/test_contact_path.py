@@ -1,0 +1,163 @@
+"""Generic contact-body paths (planner_node.contact_path): a contact plan made whole-body without
+any motion primitive, checked for the physical facts the controller relies on."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from climb_core import collision, feasibility
+from climb_core.contact import FEET, HANDS, ContactPlan
+from controller_node.plan_check import check_plan
+from planner_node import contact_path
+from planner_node.adapt import AdaptContext, ContactProjector, zone_exclusions
+from planner_node.climb_planner import contact_plan_steps, plan_from_contact_plan
+from planner_node.pcik import check_with_exclusions
+from planner_node.pipeline import PlanRequest, contact_search, guide_path, load_problem
+from planner_node.settings import load_settings
+
+
+@pytest.fixture(scope="module")
+def problem():
+    pb = load_problem(PlanRequest(id="generic", robot="g1", scenario="default", rungs=1), load_settings())
+    cp = contact_search(pb, guide_path(pb).product).product
+    return pb, cp
+
+
+@pytest.fixture(scope="module")
+def generic_plan(problem):
+    pb, cp = problem
+    library = contact_path.empty_library(pb.robot)
+    t0 = time.perf_counter()
+    res = plan_from_contact_plan(pb.robot, pb.env, cp, library=library, settings=pb.settings, seed=0)
+    elapsed = time.perf_counter() - t0
+    print(f"\ngeneric paths, 1 rung of the default ladder: {len(cp.stances) - 1} steps planned in {elapsed:.1f} s "
+          f"(cpu {res.plan_cpu_s:.1f} s), {res.report.n_attempts} attempts, {res.report.n_backtracks} backtracks")
+    return res, library
+
+
+def _previous_stances(plan):
+    return [plan.initial_stance] + [t.target_stance for t in plan.transitions[:-1]]
+
+
+def test_every_step_of_the_contact_plan_is_generic_without_a_library(problem, generic_plan):
+    pb, cp = problem
+    res, library = generic_plan
+    steps = contact_plan_steps(library, cp)
+    assert steps and all(s.primitive is None for s in steps)
+    assert res.success, f"{res.failure_constraint}: {res.failure_detail}"
+    assert len(res.plan.transitions) == len(cp.stances) - 1
+    # the stances the contact search chose are the ones reached (no release in this plan)
+    for t, stance in zip(res.plan.transitions, cp.stances[1:]):
+        assert sorted(t.target_stance.limbs) == sorted(stance.limbs)
+        for h in stance.holds:
+            got = t.target_stance.hold(h.limb)
+            assert got.env_surface == h.env_surface and np.allclose(got.centre, h.centre, atol=1e-6)
+    feet = [res.plan.transitions[-1].target_stance.hold(f).env_surface for f in FEET]
+    assert feet == ["rung_1", "rung_1"]
+
+
+def test_the_controller_accepts_the_plan_and_its_fsm_names(problem, generic_plan):
+    pb, _ = problem
+    res, _ = generic_plan
+    check_plan(res.plan, pb.robot, pb.env)
+    for t in res.plan.transitions:
+        if t.moving_limb:
+            assert t.primitive == ("place_hand" if t.moving_limb in HANDS else "place_foot")
+            assert t.stance.hold(t.moving_limb) is None and t.target_stance.hold(t.moving_limb) is not None
+        else:
+            assert t.primitive in ("com_to_foot", "com_to_centre")
+        assert np.all(np.diff(t.times) > 0.0)
+
+
+def test_paths_keep_their_holds_and_stay_collision_free(problem, generic_plan):
+    pb, _ = problem
+    res, library = generic_plan
+    frozen = feasibility.load_config()
+    tol_p = frozen.check.contact_position_tolerance
+    tol_a = math.radians(frozen.check.contact_angle_tolerance_deg)
+    ctx = AdaptContext(pb.robot, pb.env, library, pb.settings)
+    chk = collision.checker(pb.robot, pb.env, frozen.collision)
+    worst = np.inf
+    for k, (t, before) in enumerate(zip(res.plan.transitions, _previous_stances(res.plan))):
+        projector = ContactProjector(ctx, t.stance, t.path[0])
+        zone = [before.hold(t.moving_limb), t.target_stance.hold(t.moving_limb)] if t.moving_limb else []
+        for i, q in enumerate(t.path):
+            pos, ang = projector.errors(q)
+            assert pos <= tol_p and ang <= tol_a, f"transition {k} ({t.primitive}) q[{i}]: holds off by {pos} m, {ang} rad"
+            excluded = [(h.limb, h.env_surface) for h in t.stance.holds] + zone_exclusions(ctx, q, t.moving_limb, zone)
+            d = chk.distances(q, excluded)
+            assert d.min_distance >= 0.0, f"transition {k} q[{i}]: {d.pair} at {d.min_distance} m"
+            worst = min(worst, d.min_distance)
+    print(f"least clearance along the paths: {worst * 1e3:.1f} mm")
+
+
+def test_each_transition_ends_feasible_and_a_moving_limb_is_lifted(problem, generic_plan):
+    pb, _ = problem
+    res, library = generic_plan
+    frozen = feasibility.load_config()
+    ctx = AdaptContext(pb.robot, pb.env, library, pb.settings)
+    clearance = pb.settings.contact_path.lift_clearance
+    transitions = res.plan.transitions
+    lifted = 0
+    for k, (t, before) in enumerate(zip(transitions, _previous_stances(res.plan))):
+        end = t.path[-1]
+        r = feasibility.check(pb.robot, pb.env, end, t.target_stance, frozen)
+        assert r.feasible, f"transition {k} ({t.primitive}): end not feasible: {r.violated}"
+        nxt = transitions[k + 1] if k + 1 < len(transitions) else None
+        if nxt is not None and nxt.moving_limb and t.target_stance.hold(nxt.moving_limb) is not None:
+            # the next transition releases that limb first: the others carry the robot here
+            old = t.target_stance.hold(nxt.moving_limb)
+            r = check_with_exclusions(pb.robot, pb.env, end, nxt.stance, frozen, [(old.limb, old.env_surface)])
+            assert r.feasible, f"transition {k}: {old.limb} not removable at the end: {r.violated}"
+        old = before.hold(t.moving_limb) if t.moving_limb else None
+        if old is None:
+            continue
+        n = contact_path.hold_direction(ctx, old, t.path[0])
+        p0 = pb.robot.T_world_surface(t.moving_limb, t.path[0])[:3, 3]
+        m = len(t.path)
+        middle = t.path[m // 4: m - m // 4]
+        lift = max(float((pb.robot.T_world_surface(t.moving_limb, q)[:3, 3] - p0) @ n) for q in middle)
+        assert lift >= clearance, f"transition {k}: {t.moving_limb} lifted {lift:.3f} m < {clearance} m"
+        lifted += 1
+    assert lifted >= 4  # both feet off the ground onto rung 1, both hands from rung to rung
+
+
+def test_a_released_limb_is_a_com_shift_then_its_placement(problem):
+    pb, cp = problem
+    library = contact_path.empty_library(pb.robot)
+    # the search's form of a step: remove the left foot, then add it on its new hold
+    a, b = cp.stances[0], cp.stances[2]
+    assert a.hold("left_foot") is not None and b.hold("left_foot").centre[0] > a.hold("left_foot").centre[0] + 0.1
+    split = ContactPlan(cp.robot, cp.environment, cp.joint_names, [a, a.without("left_foot"), b],
+                        [cp.transition_configurations[0], cp.transition_configurations[1], cp.transition_configurations[2]])
+    steps = contact_plan_steps(library, split)
+    assert [(s.kind, s.limb, s.unload) for s in steps] == [("release", "left_foot", ("left_foot",)),
+                                                           ("limb", "left_foot", ())]
+    res = plan_from_contact_plan(pb.robot, pb.env, split, library=library, settings=pb.settings, seed=0)
+    assert res.success, f"{res.failure_constraint}: {res.failure_detail}"
+    shift, place = res.plan.transitions
+    # the CoM shift keeps the foot held (the FSM releases it when the placement starts) ...
+    assert shift.moving_limb == "" and shift.primitive == "com_to_foot"
+    assert shift.target_stance.hold("left_foot") is not None
+    frozen = feasibility.load_config()
+    old = a.hold("left_foot")
+    r = check_with_exclusions(pb.robot, pb.env, shift.path[-1], a.without("left_foot"), frozen,
+                              [("left_foot", old.env_surface)])
+    assert r.feasible, r.violated  # ... and ends in equilibrium without it
+    assert place.moving_limb == "left_foot" and place.stance.hold("left_foot") is None
+    assert feasibility.check(pb.robot, pb.env, place.path[-1], place.target_stance, frozen).feasible
+    check_plan(res.plan, pb.robot, pb.env)
+
+
+def test_a_step_changing_two_holds_is_still_rejected(problem):
+    pb, cp = problem
+    a, b = cp.stances[0], cp.stances[-1]
+    bad = ContactPlan(cp.robot, cp.environment, cp.joint_names, [a, b], cp.transition_configurations[:2])
+    from climb_core.errors import SpecError
+
+    with pytest.raises(SpecError) as err:
+        contact_plan_steps(contact_path.empty_library(pb.robot), bad)
+    assert err.value.field == "contact_plan.stances[1]"
