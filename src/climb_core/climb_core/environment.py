@@ -480,10 +480,10 @@ def build_environment(scenario_or_ladder: Any, perturbed: bool = False) -> Envir
                   length: float = 0.0, half_extents=(0.0, 0.0, 0.0), friction: float | None = None,
                   use: tuple[tuple[str, ...], bool] | None = None) -> None:
         contact_limbs, bilateral = ROLE_USE[role] if use is None else use
+        mu = friction if friction is not None else lad.friction  # type: ignore[union-attr]  # ladder parts
         surfaces[name] = Surface(name=name, role=role, shape=shape, T_world_surface=T_world, radius=float(radius),
                                  length=float(length), half_extents=np.asarray(half_extents, dtype=float),
-                                 friction=float(lad.friction if friction is None else friction),  # type: ignore[union-attr]
-                                 contact_limbs=tuple(contact_limbs), bilateral=bool(bilateral))
+                                 friction=float(mu), contact_limbs=tuple(contact_limbs), bilateral=bool(bilateral))
 
     add_world("ground", "ground", "plane", np.eye(4), half_extents=(GROUND_HALF_SIZE, GROUND_HALF_SIZE, 0.0),
               friction=_ground_friction(scenario))

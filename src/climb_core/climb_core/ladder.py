@@ -464,11 +464,17 @@ _LIST_RULES: tuple[Callable[[dict], Iterator[tuple[str, str]]], ...] = (
     lambda d: ((f"perturbation.rung_offsets[{i}].rung", f"must be in [1, n_rungs = {d['ladder']['n_rungs']}]")
                for i, o in enumerate(d["perturbation"]["rung_offsets"]) if o["rung"] > d["ladder"]["n_rungs"]),
 )
-#: Without a ladder, rung offsets and a rails shift have nothing to move.
-_LIST_RULES_NO_LADDER: tuple[Callable[[dict], Iterator[tuple[str, str]]], ...] = (
-    lambda d: (("perturbation.rung_offsets", "needs a ladder: block") for _ in d["perturbation"]["rung_offsets"][:1]),
-    lambda d: (("perturbation.rails_dy", "needs a ladder: block") for _ in [0] if d["perturbation"]["rails_dy"] != 0.0),
-)
+
+
+def _ladder_perturbation_without_ladder(d: dict) -> Iterator[tuple[str, str]]:
+    """Without a ladder, rung offsets and a rails shift have nothing to move."""
+    if d["perturbation"]["rung_offsets"]:
+        yield "perturbation.rung_offsets", "needs a ladder: block (rung offsets move rungs)"
+    if d["perturbation"]["rails_dy"] != 0.0:
+        yield "perturbation.rails_dy", "needs a ladder: block (it moves the ladder's rails)"
+
+
+_LIST_RULES_NO_LADDER: tuple[Callable[[dict], Iterator[tuple[str, str]]], ...] = (_ladder_perturbation_without_ladder,)
 
 
 # --------------------------------------------------------------------------------------------
@@ -709,8 +715,8 @@ def load_scenario(source: Any) -> Scenario:
     or a Scenario.
 
     A string is read as: YAML text if it contains a newline; else a shipped name if
-    ``config/ladders/<source>.yaml`` or else ``config/scenes/<source>.yaml`` exists; else a file path if it names an existing file or
-    ends in .yaml/.yml (relative paths: the working directory, then the project root); else YAML
+    ``config/ladders/<source>.yaml`` or else ``config/scenes/<source>.yaml`` exists; else a file
+    path if it names an existing file or ends in .yaml/.yml (relative paths: the working directory, then the project root); else YAML
     text when it contains ``:``, ``{`` or ``[``; else an unknown name (``SpecError('source', ...)``). The
     scenario is named after the file stem for names and paths, and after the document's
     ``name`` field (or "") otherwise.
