@@ -254,6 +254,8 @@ class SupportReport:
 
 @dataclass
 class GuideStats:
+    """Counters of one query (samples drawn and rejected, tree nodes, clearance queries, edges)."""
+
     samples: int = 0
     unsupported: int = 0
     in_collision: int = 0
@@ -268,7 +270,8 @@ class GuideStats:
 
 
 class GuidePlanner:
-    """Validity, projection and RRT-Connect for one (robot, environment, parameters)."""
+    """The free-flyer of one (robot, environment, parameters): states -> configurations, the
+    equilibrium criterion, body clearance, projection and steering (the search is :class:`_Search`)."""
 
     def __init__(self, robot: Any, env: Any, params: GuidePathParams | None = None):
         from climb_core.collision import ENV_PREFIX, checker
@@ -293,8 +296,8 @@ class GuidePlanner:
 
     # ---------------------------------------------------------------- model facts
     def _limbs(self) -> tuple[dict[str, int], dict[str, float]]:
-        """Root joint id and length [m] per limb: the chain from the first joint no other limb of
-        the same type shares (hip pitch, shoulder pitch) to the contact surface centre."""
+        """Root joint id and length [m] per limb: the chain from its first joint that no other limb
+        shares (hip pitch; shoulder pitch, after the waist) to the contact surface centre."""
         model, data = self.model, self.data
         q = self.robot.q_reference()
         pin.framesForwardKinematics(model, data, q)
@@ -839,3 +842,10 @@ def benchmark(scenario: str = "default", rungs: int = 3, robot_name: str = "g1",
         times.append(time.perf_counter() - t)
     return {"time_s": min(times), "times_s": times, "milestones": len(result.path.milestones),
             **{k: v for k, v in result.stats.as_dict().items() if k != "time_s"}}
+
+
+def bench_figures(seed: int = 0) -> dict:
+    """The issue's benchmark figures: ``guide_path_default_s`` (default ladder, 3 rungs) and
+    ``guide_path_narrow_passage_s`` [s], each the best of 3 runs."""
+    return {"guide_path_default_s": round(benchmark("default", 3, seed=seed)["time_s"], 4),
+            "guide_path_narrow_passage_s": round(benchmark("narrow_passage", seed=seed)["time_s"], 4)}
