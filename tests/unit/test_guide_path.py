@@ -190,6 +190,17 @@ def test_default_ladder_around_a_wall(robot, ladder, params, q_standing):
     assert crossing and crossing[0] < 0.25
 
 
+def test_ladder_from_the_four_contact_stance(robot, ladder, params):
+    """From the ladder_4_contacts fixture (feet on rung 1: the first rung goal is the start), the
+    milestones are the start and one per further rung, one rung spacing apart."""
+    _, q = fixtures.get("ladder_4_contacts", robot, ladder)
+    result = gp.plan_for_environment(robot, ladder, q, rungs=3, params=params, seed=0, time_limit_s=TIME_LIMIT_S)
+    bases = np.array([m[:3] for m in result.path.milestones])
+    assert len(bases) == 3
+    np.testing.assert_allclose(np.diff(bases, axis=0), [ladder.rung_centre(2) - ladder.rung_centre(1)] * 2, atol=1e-9)
+    assert_valid_path(result, robot, ladder, q, gp.ladder_goal_position(robot, ladder, 3), 0.1, params)
+
+
 def test_goal_in_collision(robot, ladder, params, q_standing):
     goal = ladder.rung(4).position  # the pelvis inside rung 4
     t = time.perf_counter()

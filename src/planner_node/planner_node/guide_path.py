@@ -664,6 +664,8 @@ def _milestones(pl: GuidePlanner, path: list[np.ndarray]) -> list[np.ndarray]:
     """States every milestone_spacing along the path (the steering's own checked states)."""
     out = [path[0]]
     for a, b in zip(path[:-1], path[1:]):
+        if pl.metric(a, b)[0] < 1e-6:  # a goal already reached (a start on the first rung goal)
+            continue
         states, stride = pl.edge_states(a, b)
         out += states[stride - 1:: stride]
     return out
