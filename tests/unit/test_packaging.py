@@ -101,3 +101,25 @@ def test_every_library_module_imports_without_rclpy():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().splitlines()[-1] == "[]", f"rclpy pulled in by: {out.stdout}"
+
+
+def _imports_of(path: pathlib.Path, module: str) -> list[int]:
+    """Line numbers of every import of ``module`` (or a submodule) in the file, at any depth."""
+    lines = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import) and any(a.name == module or a.name.startswith(module + ".")
+                                                for a in node.names):
+            lines.append(node.lineno)
+        elif isinstance(node, ast.ImportFrom) and node.module and (node.module == module
+                                                                   or node.module.startswith(module + ".")):
+            lines.append(node.lineno)
+    return lines
+
+
+def test_the_core_is_simulator_free():
+    """climb_core is shared by planner, controller and bridge: no module of it imports PyBullet
+    (the simulator's bodies and URDF are the bridge's: sim_bridge.world_bodies, sim_bridge.sim_urdf)."""
+    offenders = [f"{path.relative_to(ROOT)}:{line}"
+                 for path in sorted((ROOT / "src" / "climb_core" / "climb_core").rglob("*.py"))
+                 for line in _imports_of(path, "pybullet")]
+    assert not offenders, f"climb_core modules importing pybullet: {offenders}"

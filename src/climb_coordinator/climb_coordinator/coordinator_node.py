@@ -127,15 +127,18 @@ def check_contacts(msg: Any) -> None:
 
 
 def scenario_source(scenario: str) -> tuple[str, str]:
-    """(name, text) of a request's scenario: a shipped name stays a name (its file's text is the
+    """(name, text) of a request's scenario: a shipped ladder or scene name stays a name (its file's text is the
     text), a file path becomes its text, YAML text stays text (name "custom" or its `name`)."""
     import pathlib
 
-    from climb_core.ladder import available_ladders, ladder_config_dir, parse_yaml
+    from climb_core.ladder import (available_ladders, available_scenes, ladder_config_dir, parse_yaml,
+                                   scene_config_dir)
 
     s = scenario.strip()
     if "\n" not in scenario and s in available_ladders():
         return s, (ladder_config_dir() / f"{s}.yaml").read_text()
+    if "\n" not in scenario and s in available_scenes():
+        return s, (scene_config_dir() / f"{s}.yaml").read_text()
     if "\n" not in scenario and s.lower().endswith((".yaml", ".yml")):
         path = pathlib.Path(s).expanduser()
         if not path.is_file():

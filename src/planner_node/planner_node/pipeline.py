@@ -169,15 +169,16 @@ def check_strategy(strategy: str, stage: str) -> None:
 
 
 def load_request_scenario(text: str):
-    """A scenario from a request's ``scenario``: a shipped ladder name, or spec YAML text. A file
-    path is refused (a request on a topic must not make a node read files)."""
-    from climb_core.ladder import available_ladders, load_scenario
+    """A scenario from a request's ``scenario``: a shipped ladder or scene name, or spec YAML text.
+    A file path is refused (a request on a topic must not make a node read files)."""
+    from climb_core.ladder import available_ladders, available_scenes, load_scenario
 
     s = text.strip()
     is_text = "\n" in text or any(c in s for c in ":{[")
     if not is_text:
-        if not _NAME_RE.match(s) or s.lower().endswith((".yaml", ".yml")) or s not in available_ladders():
-            raise SpecError("request.scenario", f"no ladder named {s!r} (known: {', '.join(available_ladders())}); "
+        known = available_ladders() + available_scenes()
+        if not _NAME_RE.match(s) or s.lower().endswith((".yaml", ".yml")) or s not in known:
+            raise SpecError("request.scenario", f"no ladder or scene named {s!r} (known: {', '.join(known)}); "
                                                 f"or give the spec's YAML text"[:400])
     try:
         return load_scenario(text if is_text else s)
@@ -194,6 +195,8 @@ def check_request(request: PlanRequest) -> None:
         raise SpecError("request.robot", f"unknown robot {request.robot!r} (available: "
                                          f"{', '.join(available_robots())})")
     scenario = load_request_scenario(request.scenario)
+    if scenario.ladder is None:  # a scene: its goal, not rungs, ends the climb
+        return
     n = int(scenario.ladder.n_rungs)
     if request.rungs > n:
         raise SpecError("request.rungs", f"must be <= the ladder's {n} rungs (the feet end on rung `rungs`), "

@@ -1,7 +1,8 @@
 """What the bridge builds from names: the scenario / environment and the initial posture.
 
 Postures: an explicit Pinocchio configuration wins; ``standing`` (or ``reference``) is the robot's
-reference posture on flat ground at the origin; any other name is looked up in the shared stance
+reference posture on flat ground at the scenario's start pose (``start.pose`` of a scene, else the
+origin); any other name is looked up in the shared stance
 fixtures (climb_core.fixtures), whose hands holding a rung or rail are latched at t = 0.
 """
 from __future__ import annotations
@@ -38,8 +39,8 @@ def initial_configuration(robot, env, q: np.ndarray | None, posture: str) -> tup
         q = q.copy()
         q[3:7] /= np.linalg.norm(q[3:7])
         return q, ()
-    if posture in STANDING:
-        return robot.q_reference(), ()
+    if posture in STANDING:  # on the ground at the scenario's start pose (the origin for ladders)
+        return env.place_at_start(robot.q_reference()), ()
     return _fixture_configuration(robot, env, posture)
 
 
