@@ -1,9 +1,10 @@
 """Best-first multi-contact search (planner_node.contact_search) for G1 on the default ladder.
 
-The search never reads the primitive library (``load_library`` is made to fail while it runs).
-Milestones: the ``ladder_4_contacts`` fixture (feet on rung 1, hands on rung 5), then that
-configuration moved up the ladder by one and two rung spacings: the feet must end on rung 3 (the
-spec's ``rungs_reached``: the highest rung with both feet on it).
+The main case is the pipeline's: the guide path planner's milestones
+(:func:`planner_node.guide_path.plan_for_environment`, 3 rungs) from the ``standing`` fixture on
+the ground, searched without the primitive library (``load_library`` is made to fail while the
+search runs: no hints). The feet must end on rung 3 (the spec's ``rungs_reached``: the highest
+rung with both feet on it).
 """
 from __future__ import annotations
 
@@ -55,19 +56,21 @@ def no_primitives():
 
 @pytest.fixture(scope="module")
 def climb(g1, env, no_primitives):
-    start_rung = 1
-    q0, stance0, path = ladder_path(g1, env, RUNGS - start_rung)
+    from planner_node.guide_path import plan_for_environment
+
+    stance0, q0 = fixtures.get("standing", g1, env)
+    path = plan_for_environment(g1, env, q0, rungs=RUNGS).path
     t0 = time.perf_counter()
     result = cs.search(g1, env, q0, stance0, path)
     elapsed = time.perf_counter() - t0
     figures = {"contact_search_3_rungs_s": round(elapsed, 2), **result.stats.as_dict(),
-               "transitions": len(result.moves)}
+               "transitions": len(result.moves), "milestones": len(path.milestones)}
     print("contact_search figures:", json.dumps(figures))
-    return result, elapsed, path
+    return result, elapsed, path, q0, stance0
 
 
 def test_three_rungs_found_within_time(climb):
-    result, elapsed, path = climb
+    result, elapsed, path, _, _ = climb
     assert elapsed <= 60.0, f"contact_search_3_rungs_s = {elapsed:.1f} (required <= 60 s)"
     s = result.stats
     assert s.milestones_reached == len(path.milestones)
@@ -84,7 +87,7 @@ def test_three_rungs_found_within_time(climb):
 
 
 def test_consecutive_stances_differ_by_one_hold(climb, g1, env):
-    result, _, _ = climb
+    result, _, _, _, _ = climb
     stances = result.plan.stances
     for i, (a, b) in enumerate(zip(stances[:-1], stances[1:]), start=1):
         added, removed = cs.transition_changes(a, b)
@@ -99,7 +102,7 @@ def test_every_transition_configuration_passes_the_frozen_check(climb, g1, env):
     """Added contact: the configuration passes the frozen check on its stance. Removed contact
     (zero force: the limb still on its hold): it passes the frozen check on the stance it leaves,
     and the stance without the limb is in equilibrium there (that limb's touch excluded)."""
-    result, _, _ = climb
+    result, _, _, _, _ = climb
     frozen = feasibility.load_config()
     stances, qs = result.plan.stances, result.plan.transition_configurations
     res0 = feasibility.check(g1, env, qs[0], stances[0], frozen)
@@ -123,25 +126,26 @@ def test_every_transition_configuration_passes_the_frozen_check(climb, g1, env):
             assert res.feasible, f"stance {i} ({result.moves[i - 1]}) without {h.limb}: {res.violated}"
 
 
-def test_deterministic(climb, g1, env, no_primitives):
-    """The same search to the first milestone gives the same moves and configurations (to 1e-3:
-    coal's distance queries are warm-started from the previous ones, which moves the IK's last
-    digits)."""
-    result, _, path = climb
-    q0, stance0, _ = ladder_path(g1, env, 1)
-    short = GuidePath(path.robot, path.environment, path.joint_names, path.milestones[:2])
-    again = cs.search(g1, env, q0, stance0, short)
-    n = len(again.moves)
-    assert again.moves == result.moves[:n]
-    for a, b in zip(again.plan.transition_configurations, result.plan.transition_configurations[:n + 1]):
+def test_deterministic(g1, env, no_primitives):
+    """The same search twice (one rung up from the ``ladder_4_contacts`` fixture, milestones of
+    the guide path's kind: the fixture moved up the ladder by one rung spacing) gives the same
+    moves, and the same configurations to 1e-3 (coal's distance queries are warm-started from the
+    previous ones, which moves the IK's last digits)."""
+    q0, stance0, path = ladder_path(g1, env, 1)
+    first = cs.search(g1, env, q0, stance0, path)
+    again = cs.search(g1, env, q0, stance0, path)
+    assert again.moves == first.moves and len(first.moves) >= 8
+    for a, b in zip(again.plan.transition_configurations, first.plan.transition_configurations):
         assert np.abs(a - b).max() < 1e-3
+    # the feet moved up one rung, the hands too
+    last = first.plan.stances[-1]
+    assert {last.hold(f).env_surface for f in FEET} == {"rung_2"}
 
 
-def test_out_of_reach_milestone_fails_from_the_search_within_its_time_limit(climb, g1, env, no_primitives):
+def test_out_of_reach_milestone_fails_from_the_search_within_its_time_limit(g1, env, no_primitives):
     """A milestone 2 m to the side of the ladder, in the air: collision-free, no surface within
     reach of its limbs. The search runs out of its time limit and says how far it got."""
-    _, _, path = climb
-    q0, stance0, _ = ladder_path(g1, env, 0)
+    q0, stance0, path = ladder_path(g1, env, 1)
     far = path.milestones[1].copy()
     far[1] += 2.0
     chk = collision.checker(g1, env, feasibility.load_config().collision)

@@ -18,8 +18,11 @@ other:
 - branching: the surfaces of a free limb beyond its reach from its root (hip / shoulder) are
   pruned before any IK call; of the others, the ``max_surfaces_per_limb`` closest to the limb's
   place at the milestone are tried (0: all of them, the paper's exhaustive expansion);
-- a node whose configuration is within ``milestone_tolerance`` of the milestone reaches it; the
-  next milestone is searched from that node; after the last one the stance sequence and the
+- a node reaches an intermediate milestone when its base (position and rotation) is within
+  ``milestone_tolerance`` of the milestone's, or is as close to the next milestone's base as this
+  milestone's is (the guide path plans the free-flyer, where the limbs go is the search's), the
+  last one when its whole configuration distance is within
+  ``goal_tolerance``; the next milestone is searched from that node; after the last one the stance sequence and the
   transition configurations are read back up the tree (:class:`~climb_core.contact.ContactPlan`:
   consecutive stances differ by exactly one hold).
 
@@ -157,22 +160,23 @@ class _Target:
 
 
 def distance_terms(q: np.ndarray, limbs: dict[str, np.ndarray], target: _Target,
-                   params: ContactSearchParams) -> tuple[float, dict[str, float]]:
-    """(base and joint terms [m], limb -> its contact surface's distance to the milestone's [m])."""
+                   params: ContactSearchParams) -> tuple[float, float, dict[str, float]]:
+    """(free-flyer term: base position and rotation [m], joint term [m], limb -> its contact
+    surface's distance to the milestone's [m])."""
     dp = float(np.linalg.norm(q[:3] - target.q[:3]))
     R = pin.Quaternion(np.asarray(q[3:7])).toRotationMatrix()
     Rm = pin.Quaternion(np.asarray(target.q[3:7])).toRotationMatrix()
     angle = float(np.linalg.norm(pin.log3(Rm.T @ R)))
     dj = float(np.sqrt(np.mean((q[7:] - target.q[7:]) ** 2)))
     per_limb = {k: float(np.linalg.norm(limbs[k] - target.limbs[k])) for k in target.limbs}
-    return dp + params.base_rotation_weight * angle + params.joint_weight * dj, per_limb
+    return dp + params.base_rotation_weight * angle, params.joint_weight * dj, per_limb
 
 
 def configuration_distance(q: np.ndarray, limbs: dict[str, np.ndarray], target: _Target,
                            params: ContactSearchParams) -> float:
     """d(q, q_m) [m] of the module docstring (``limbs``: the limb positions at q)."""
-    rest, per_limb = distance_terms(q, limbs, target, params)
-    return rest + params.limb_weight * sum(per_limb.values())
+    base, joints, per_limb = distance_terms(q, limbs, target, params)
+    return base + joints + params.limb_weight * sum(per_limb.values())
 
 
 # --------------------------------------------------------------------------------------------
@@ -189,6 +193,7 @@ class Node:
     move: str = ""  # "add:<limb>@<surface>" | "remove:<limb>@<surface>" | "" (root)
     depth: int = 0
     distance: float = math.inf  # [m] configuration distance to the milestone it was pushed for
+    base_distance: float = math.inf  # [m] its free-flyer term (base position and rotation)
 
 
 @dataclass
@@ -274,20 +279,27 @@ class _Search:
             return None
         return res
 
-    def _priority(self, node: Node, target: _Target, floating: tuple[str, np.ndarray] | None = None) -> float:
+    def _priority(self, node: Node, target: _Target, after: _Target | None = None,
+                  floating: tuple[str, np.ndarray] | None = None) -> float:
         """Node cost: the distance of the limbs in contact counted at their places, each free
         limb at ``free_limb_cost`` (it may go anywhere next: a removal that frees a limb far from
-        its milestone place ranks high), plus the added contact's distance to its preferred place."""
+        its milestone place ranks high), plus the added contact's distance to its preferred place;
+        with ``lookahead``, the smaller of that cost to the targeted milestone and to the next."""
         limbs = self.kin.limb_positions(node.q)
-        rest, per_limb = distance_terms(node.q, limbs, target, self.params)
-        node.distance = rest + self.params.limb_weight * sum(per_limb.values())
         held = set(node.stance.limbs)
-        cost = (rest + self.params.limb_weight * sum(d for k, d in per_limb.items() if k in held)
-                + self.params.free_limb_cost * sum(1 for k in per_limb if k not in held))
-        if floating is not None:
-            limb, preferred = floating
-            cost += self.params.floating_cost_weight * float(np.linalg.norm(limbs[limb] - preferred))
-        return cost
+        costs = []
+        for k, t in enumerate((target, after) if (after is not None and self.params.lookahead) else (target,)):
+            base, joints, per_limb = distance_terms(node.q, limbs, t, self.params)
+            if k == 0:
+                node.distance = base + joints + self.params.limb_weight * sum(per_limb.values())
+                node.base_distance = base
+            cost = (base + joints + self.params.limb_weight * sum(d for j, d in per_limb.items() if j in held)
+                    + self.params.free_limb_cost * sum(1 for j in per_limb if j not in held))
+            if floating is not None:
+                limb, _ = floating
+                cost += self.params.floating_cost_weight * float(np.linalg.norm(limbs[limb] - t.limbs[limb]))
+            costs.append(cost)
+        return min(costs)
 
     # ---- expansion
     def _children(self, node: Node, target: _Target, seen: set) -> list[tuple[Node, tuple | None]]:
@@ -337,21 +349,35 @@ class _Search:
                 out.append((Node(child, res.q, node, f"remove:{h.limb}@{h.env_surface}", node.depth + 1), None))
         return out
 
-    def to_milestone(self, root: Node, target: _Target, index: int) -> Node:
-        """Best-first search from ``root`` until a node within tolerance of ``target``."""
-        tol = self.params.milestone_tolerance
+    def _reached(self, node: Node, target: _Target, after: _Target | None) -> bool:
+        """A guide-path milestone places the free-flyer (base), the search places the limbs: the
+        last milestone is reached by the whole configuration; an intermediate one by the base, or
+        passed: the base is as close to the next milestone's as this milestone's is (a guide path's
+        in-between milestone need not be a configuration any contact set can hold)."""
+        if after is None:
+            return node.distance <= self.params.goal_tolerance
+        if node.base_distance <= self.params.milestone_tolerance:
+            return True
+        base_next, _, _ = distance_terms(node.q, {}, _Target(after.q, {}), self.params)
+        span, _, _ = distance_terms(target.q, {}, _Target(after.q, {}), self.params)
+        return base_next <= span
+
+    def to_milestone(self, root: Node, target: _Target, index: int, after: _Target | None) -> Node:
+        """Best-first search from ``root`` until a node reaches ``target`` (``after``: the next
+        milestone, None for the last)."""
         counter = 0
         queue: list[tuple[float, int, Node]] = []
-        heapq.heappush(queue, (self._priority(root, target), counter, root))
+        heapq.heappush(queue, (self._priority(root, target, after), counter, root))
         seen = {stance_key(root.stance, self.params.key_resolution)}
         expanded: set = set()
         self.best = (root.distance, index)
+        self.last = after is None
         while queue:
             reason = self._out_of_budget()
             if reason:
                 self._fail(reason, index)
             _, _, node = heapq.heappop(queue)
-            if node.distance <= tol:
+            if self._reached(node, target, after):
                 return node
             key = stance_key(node.stance, self.params.key_resolution)
             if key in expanded:
@@ -366,7 +392,7 @@ class _Search:
                     continue
                 seen.add(ckey)
                 counter += 1
-                prio = self._priority(child, target, floating)
+                prio = self._priority(child, target, after, floating)
                 self.best = min(self.best, (child.distance, index))
                 heapq.heappush(queue, (prio, counter, child))
                 self.stats.nodes_pushed += 1
@@ -376,9 +402,11 @@ class _Search:
     def _fail(self, reason: str, index: int) -> None:
         s = self.stats
         s.time_s = time.perf_counter() - self.t0
+        tol = (f"{self.params.goal_tolerance} m on the configuration" if self.last
+               else f"{self.params.milestone_tolerance} m on the base")
         raise InfeasibleError(f"contact_search:{reason}", (
-            f"milestone {index} not reached: closest node {self.best[0]:.3f} m away (tolerance "
-            f"{self.params.milestone_tolerance} m) after {s.nodes_expanded} nodes expanded, {s.ik_calls} IK calls "
+            f"milestone {index} not reached: closest node {self.best[0]:.3f} m away (configuration distance; "
+            f"tolerance {tol}) after {s.nodes_expanded} nodes expanded, {s.ik_calls} IK calls "
             f"({s.ik_failures} failed), {s.time_s:.1f} s (time limit {self.params.time_limit_s} s, node budget "
             f"{self.params.max_nodes})"))
 
@@ -412,10 +440,10 @@ def search(robot: Any, env: Any, q_start: np.ndarray, stance_start: Stance, path
     s = _Search(robot, env, params, pcik_params, feasibility_cfg)
     node = Node(stance_start, np.asarray(q_start, dtype=float).copy())
     reached: list[Node] = []
-    for i, m in enumerate(path.milestones):
-        q_m = np.asarray(m, dtype=float)
-        target = _Target(q_m, s.kin.limb_positions(q_m))
-        node = s.to_milestone(node, target, i)
+    targets = [_Target(np.asarray(m, dtype=float), s.kin.limb_positions(np.asarray(m, dtype=float)))
+               for m in path.milestones]
+    for i, target in enumerate(targets):
+        node = s.to_milestone(node, target, i, targets[i + 1] if i + 1 < len(targets) else None)
         reached.append(node)
         s.stats.milestones_reached = i + 1
     s.stats.time_s = time.perf_counter() - s.t0

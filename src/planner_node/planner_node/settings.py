@@ -155,7 +155,9 @@ class ContactSearchParams:
     max_nodes: int = param(400, unit="-", min=1, description="node budget: contact sets expanded in one search")
     milestone_tolerance: float = param(0.1, unit="m", min=0.0, description=(
         "a node whose base (position + weighted rotation) is this close to an intermediate milestone's reaches it"))
-    goal_tolerance: float = param(0.08, unit="m", min=0.0, description=(
+    lookahead: bool = param(True, unit="-", description=(
+        "a node's cost is the smaller of its costs to the targeted milestone and to the next one"))
+    goal_tolerance: float = param(0.1, unit="m", min=0.0, description=(
         "a node within this configuration distance of the last milestone reaches it"))
     base_rotation_weight: float = param(0.3, unit="m/rad", min=0.0, description=(
         "configuration distance: base rotation angle counted in metres"))
