@@ -10,9 +10,12 @@ three status topics.
   for the same request (climb_coordinator.climb.plan); the adaptation's `done` text is the
   planning summary;
 - a replan from a measured state (`start`: q and stance) plans what the in-process replanner plans;
-- bad requests: a malformed one fails at guide_path naming the field, `strategy: search` is refused
-  with the reason, a contact plan arriving while the adaptation is busy is refused with ITS id;
-- the strategy parameter: validated on set, `search` refused;
+- `strategy: search` (guide path, best-first contact search, adaptation) from the 4-contact stance
+  to rung 3: a whole-body plan the controller accepts;
+- bad requests: a malformed one fails at guide_path naming the field, a scene with the
+  `primitives` strategy is refused with the reason, a contact plan arriving while the adaptation
+  is busy is refused with ITS id;
+- the strategy parameter: validated on set, it decides for a request that names none;
 - garbage bytes on every input: reported on diagnostics, the nodes keep serving;
 - SIGTERM / SIGINT mid-planning: every node exits 0 without a traceback.
 Plus the YAML files say what the code's defaults are.
@@ -333,14 +336,47 @@ def test_malformed_requests_fail_at_the_guide_path_naming_the_field(graph):
         assert not client.of("guide_path", r) if r else True
 
 
-def test_the_search_strategy_is_refused_with_the_reason(graph):
+def test_a_search_request_passes_every_stage_to_a_whole_body_plan(graph):
+    """strategy: search over DDS: the free-flyer guide path, the best-first contact search (no seed
+    holds) and the adaptation (primitives where they fit, generic paths elsewhere), from the
+    4-contact stance on rung 1 to the feet on rung 3; the plan is one the controller accepts."""
+    from climb_core import fixtures
+    from climb_core.environment import build_environment
+    from climb_core.robot import load_robot
+    from controller_node.plan_check import check_plan
+    from msgs_py.contact import whole_body_plan_from_msg
+    from planner_node.plan_io import stance_to_dict
+
     client = graph
-    client.request(dict(REQUEST, id="search-1", strategy="search"))
-    client.spin_until(lambda: client.status("search-1", "failed"), 30.0, "the refusal")
-    (topic, msg), = client.status("search-1", "failed")
+    robot, env = load_robot("g1"), build_environment("default")
+    stance, q = fixtures.get("ladder_4_contacts", robot, env)
+    rid = "search-1"
+    client.request(dict(REQUEST, id=rid, rungs=3, strategy="search", timeout_s=300,
+                        start={"q": q.tolist(), "stance": stance_to_dict(stance)}))
+    client.spin_until(lambda: client.of("whole_body_plan", rid) or client.status(rid, "failed"), 400.0,
+                      "the searched whole-body plan")
+    assert not client.status(rid, "failed"), client.status(rid, "failed")[0][1].text
+    client.spin_until(lambda: len(client.status(rid, "done")) == 3, 10.0, "three done statuses")
+    done = {t: json.loads(m.text) for t, m in client.status(rid, "done")}
+    assert [done[s]["strategy"] for s in STATUS] == ["search"] * 3
+    assert done["guide_path/status"]["n_milestones"] >= 3  # one per rung (the start's own rung included)
+    moves = done["contact_search/status"]["moves"]
+    assert all(m.split(":")[0] in ("add", "remove") for m in moves) and done["contact_search/status"]["ik_calls"] > 0
+    plan = whole_body_plan_from_msg(client.of("whole_body_plan", rid)[-1])
+    check_plan(plan, robot, env)
+    assert len(plan.transitions) == len(moves)
+    last = plan.transitions[-1].target_stance
+    assert {last.hold(f).env_surface for f in ("left_foot", "right_foot")} == {"rung_3"}
+
+
+def test_a_scene_planned_with_the_primitives_strategy_is_refused_with_the_reason(graph):
+    client = graph
+    client.request(dict(REQUEST, id="scene-1", scenario="narrow_passage", rungs=1))
+    client.spin_until(lambda: client.status("scene-1", "failed"), 30.0, "the refusal")
+    (topic, msg), = client.status("scene-1", "failed")
     assert topic == "guide_path/status"
-    assert "strategy" in msg.text and "search" in msg.text and "not implemented" in msg.text
-    assert not client.of("guide_path", "search-1")
+    assert "strategy 'search' needed for a scene without a ladder" in msg.text
+    assert not client.of("guide_path", "scene-1")
 
 
 def test_a_contact_plan_while_the_adaptation_is_busy_is_refused_with_its_own_id(graph):
@@ -380,18 +416,22 @@ def set_parameter(client, node_name: str, name: str, value: str):
         client.node.destroy_client(cli)
 
 
-def test_the_strategy_parameter_is_validated_and_search_refused(graph):
+def test_the_strategy_parameter_is_validated_and_decides_a_request_without_one(graph):
     client = graph
     bad = set_parameter(client, "contact_search", "strategy", "banana")
     assert not bad.successful and "strategy" in bad.reason and "primitives" in bad.reason
     assert set_parameter(client, "guide_path", "strategy", "search").successful
     try:
-        request = dict(REQUEST, id="search-2")
+        request = dict(REQUEST, id="scene-2", scenario="narrow_passage", rungs=1)
         del request["descend"]
-        client.request(request)  # no strategy in the request: the node's parameter decides
-        client.spin_until(lambda: client.status("search-2", "failed"), 30.0, "the refusal")
-        (topic, msg), = client.status("search-2", "failed")
-        assert topic == "guide_path/status" and "not implemented" in msg.text
+        client.request(request)  # no strategy in the request: each node's parameter decides
+        client.spin_until(lambda: client.status("scene-2", "failed"), 60.0, "the contact search's refusal")
+        (topic, msg), = client.status("scene-2", "done")  # the guide path searched the scene
+        assert topic == "guide_path/status" and json.loads(msg.text)["strategy"] == "search"
+        path = client.of("guide_path", "scene-2")[-1]
+        assert len(path.milestones) >= 2
+        (topic, msg), = client.status("scene-2", "failed")  # contact_search still runs primitives
+        assert topic == "contact_search/status" and "strategy 'search' needed" in msg.text
     finally:
         assert set_parameter(client, "guide_path", "strategy", "primitives").successful
 

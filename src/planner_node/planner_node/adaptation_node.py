@@ -163,7 +163,7 @@ def make_node():
 
         def _adapt(self, req, contact_plan, params) -> None:
             problem = load_problem(req, planner_settings(params))
-            res, summary = adapt(problem, contact_plan, on_progress=self._on_progress)
+            res, summary = adapt(problem, contact_plan, on_progress=self._on_progress, strategy=params.strategy)
             self._publish_result(req.id, res, summary, req.text)
 
         def _publish_result(self, rid: str, res, summary: dict, request_json: str = "") -> None:

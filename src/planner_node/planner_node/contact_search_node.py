@@ -6,7 +6,8 @@ Outputs
   - ``contact_plan`` (climb_msgs/ContactPlan, request_id + request_json passed on): with
     ``strategy: primitives``, the stance sequence of the primitive library's seed holds on the
     scenario's rungs, each with its transition configuration (the guide milestone projected onto
-    the stance by Algorithm 1) checked with the frozen feasibility check
+    the stance by Algorithm 1) checked with the frozen feasibility check; with ``strategy: search``,
+    the best-first multi-contact search through the guide path's milestones
     (:func:`planner_node.pipeline.contact_search`);
   - ``contact_search/status`` (climb_msgs/ClimbStatus, id = the request's id): contact_search ->
     done (text: JSON summary: n_stances, n_feasible, the infeasible stances with their constraint)
@@ -66,7 +67,8 @@ def make_node():
             settings = stage_settings(params.library, params.primitives_dir)
             problem = load_problem(req, settings)
             res = contact_search(problem, path, restarts=params.restarts, require_feasible=params.require_feasible,
-                                 seed=settings.planning.seed if req.seed is None else req.seed)
+                                 seed=settings.planning.seed if req.seed is None else req.seed,
+                                 strategy=params.strategy)
             out = contact_plan_to_msg(res.product, stamp=self.now_s())
             out.request_id = req.id
             out.request_json = req.text

@@ -7,10 +7,11 @@ Inputs
 Outputs
   - ``guide_path`` (climb_msgs/GuidePath, request_id + request_json verbatim): with
     ``strategy: primitives``, the milestones of the primitive sequence moved onto the actual
-    ladder (:func:`planner_node.pipeline.guide_path`);
+    ladder; with ``strategy: search``, the free-flyer RRT-Connect path to the scene's goal or up
+    the ladder (:func:`planner_node.pipeline.guide_path`);
   - ``guide_path/status`` (climb_msgs/ClimbStatus, id = the request's id): guide_path -> done (text:
     JSON summary) | failed (text: the reason: a malformed request names the field and the rule;
-    ``strategy: search`` is refused, not implemented yet).
+    a scene without a ladder asks for ``strategy: search``).
 
 Parameters (config/nodes/guide_path.yaml): strategy, library, primitives_dir,
 projection_iterations (:class:`planner_node.node_params.GuidePathParams`).
@@ -58,7 +59,7 @@ def make_node():
 
         def _plan(self, req, params) -> None:
             problem = load_problem(req, stage_settings(params.library, params.primitives_dir))
-            res = guide_path(problem, params.projection_iterations)
+            res = guide_path(problem, params.projection_iterations, strategy=params.strategy)
             out = guide_path_to_msg(res.product, stamp=self.now_s())
             out.request_id = req.id
             out.request_json = req.text

@@ -26,7 +26,7 @@ ADAPTATION_NODE = "primitive_adaptation"
 
 _STRATEGY_DOC = ("planning strategy when the request names none: primitives (the ladder paper: motion "
                  "primitives adapted by a multi-step search) | search (the DARPA-tasks paper: free-flyer guide "
-                 "path and best-first contact search; not implemented yet, refused with a failed status)")
+                 "path and best-first contact search, ladders and scenes)")
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,7 @@
 """The planning pipeline of the ROS graph, without ROS: plan request -> guide path -> contact plan
--> whole-body plan (``strategy: primitives``, the ladder paper's method).
+-> whole-body plan, by one of two strategies: ``primitives`` (the ladder paper's method, ladders
+only) or ``search`` (the DARPA-tasks paper's free-flyer guide path and best-first contact search,
+ladders and scenes; :func:`guide_path_search`, :func:`contact_search_search`, :func:`adapt_search`).
 
 The coordinator publishes a *plan request* (JSON, :func:`parse_plan_request`); three nodes
 answer it in turn, each a thin wrapper around one function here:
@@ -44,10 +46,11 @@ from climb_core.errors import InfeasibleError, SpecError
 from .settings import PlannerSettings
 
 #: planning strategies: ``primitives`` (the ladder paper: motion primitives adapted by a
-#: multi-step search) is implemented; ``search`` (the DARPA-tasks paper's free-flyer guide path and
-#: best-first contact search) comes with its own issue
+#: multi-step search, ladders only) and ``search`` (the DARPA-tasks paper: free-flyer guide path,
+#: best-first contact search, each transition adapted from a primitive where one fits, else a
+#: generic contact-body path)
 STRATEGIES = ("primitives", "search")
-IMPLEMENTED_STRATEGIES = ("primitives",)
+IMPLEMENTED_STRATEGIES = ("primitives", "search")
 REQUEST_FIELDS = ("id", "robot", "scenario", "rungs", "seed", "timeout_s", "descend", "strategy", "start")
 #: a request is a small JSON document (a spec's YAML text and a start configuration fit easily)
 MAX_REQUEST_CHARS = 1_000_000
@@ -153,15 +156,10 @@ def parse_plan_request(text: Any) -> PlanRequest:
                        descend=descend, strategy=strategy, start=start, text=text)
 
 
-def check_strategy(strategy: str, stage: str) -> None:
-    """InfeasibleError (constraint ``strategy``) for a strategy this stage cannot run yet."""
+def check_strategy(strategy: str, stage: str = "") -> None:
+    """SpecError (field ``strategy``) for an unknown strategy (every stage runs both)."""
     if strategy not in STRATEGIES:
         raise SpecError("strategy", f"must be one of {', '.join(STRATEGIES)}, got {strategy!r}")
-    if strategy not in IMPLEMENTED_STRATEGIES:
-        what = {"guide_path": "the free-flyer guide path", "contact_search": "the best-first contact search",
-                "primitive_adaptation": "the adaptation of a searched contact plan"}.get(stage, stage)
-        raise InfeasibleError("strategy", f"strategy 'search' ({what} of the DARPA-tasks paper) is not "
-                                          f"implemented yet (a later issue); use strategy 'primitives'")
 
 
 # --------------------------------------------------------------------------------------------
@@ -380,10 +378,62 @@ class StageResult:
     summary: dict = field(default_factory=dict)
 
 
-def guide_path(problem: Problem, projection_iterations: int = 30) -> StageResult:
-    """The guide path of the primitive sequence: the start configuration, then each primitive's key
-    configuration moved onto the actual ladder and projected onto its seed holds (a milestone the
-    projection cannot bring onto the holds stays where the move put it; counted)."""
+def strategy_of(problem: Problem, default: str) -> str:
+    """The request's strategy (else ``default``, the node's parameter); SpecError when the scenario
+    has no ladder and the strategy is not ``search`` (the primitive libraries climb ladders only)."""
+    from climb_core.scene import require_search_strategy
+
+    strategy = problem.request.effective_strategy(default)
+    check_strategy(strategy, "")
+    require_search_strategy(problem.scenario, strategy)
+    return strategy
+
+
+def search_start(problem: Problem) -> tuple[np.ndarray, Stance]:
+    """(q, stance) the ``search`` strategy starts from: the request's measured start projected
+    onto its stance (as :func:`start_state`), else standing on the ground (both feet) at the
+    scenario's start pose."""
+    if problem.start is not None:
+        return start_state(problem)
+    from climb_core import fixtures, holds
+    from climb_core.contact import FEET
+
+    robot, env = problem.robot, problem.env
+    _, q = fixtures.get("standing", robot, env)
+    q = env.place_at_start(q)
+    stance = Stance(tuple(holds.hold_from_configuration(robot, env, q, limb, "ground") for limb in FEET),
+                    name="standing")
+    return q, stance
+
+
+def _seed(problem: Problem) -> int:
+    return problem.settings.planning.seed if problem.request.seed is None else int(problem.request.seed)
+
+
+def guide_path_search(problem: Problem) -> StageResult:
+    """``strategy: search``: the free-flyer guide path (:mod:`planner_node.guide_path`, RRT-Connect)
+    from :func:`search_start` to the scene's goal, or up the ladder one milestone per rung."""
+    from .guide_path import plan_for_environment
+
+    t0 = time.perf_counter()
+    q0, _ = search_start(problem)
+    env = problem.env
+    rungs = None if getattr(env, "goal", None) is not None else problem.request.rungs
+    res = plan_for_environment(problem.robot, env, q0, rungs=rungs, params=problem.settings.guide_path,
+                               seed=_seed(problem), time_limit_s=problem.request.timeout_s)
+    summary = {"strategy": "search", "n_milestones": len(res.path.milestones),
+               "goal": "scene" if rungs is None else f"{rungs} rungs", **res.stats.as_dict(),
+               "time_s": round(time.perf_counter() - t0, 3)}
+    return StageResult(res.path, summary)
+
+
+def guide_path(problem: Problem, projection_iterations: int = 30, strategy: str = "primitives") -> StageResult:
+    """The guide path of the request's strategy. ``primitives``: the milestones of the primitive
+    sequence: the start configuration, then each primitive's key configuration moved onto the
+    actual ladder and projected onto its seed holds (a milestone the projection cannot bring onto
+    the holds stays where the move put it; counted). ``search``: :func:`guide_path_search`."""
+    if strategy_of(problem, strategy) == "search":
+        return guide_path_search(problem)
     from .adapt import AdaptContext, ContactProjector
 
     t0 = time.perf_counter()
@@ -411,9 +461,29 @@ def _stance_key(stance: Stance) -> list[tuple[str, str, tuple]]:
     return sorted((h.limb, h.env_surface, tuple(np.round(h.centre, 3))) for h in stance.holds)
 
 
+def contact_search_search(problem: Problem, path: GuidePath) -> StageResult:
+    """``strategy: search``: the best-first multi-contact search (:mod:`planner_node.contact_search`)
+    from :func:`search_start` through the guide path's milestones. InfeasibleError
+    ``contact_search:<reason>`` when a milestone is not reached."""
+    import dataclasses
+
+    from .contact_search import search
+
+    t0 = time.perf_counter()
+    q0, stance0 = search_start(problem)
+    params = problem.settings.contact_search
+    if problem.request.timeout_s is not None:
+        params = dataclasses.replace(params, time_limit_s=float(problem.request.timeout_s))
+    res = search(problem.robot, problem.env, q0, stance0, path, params, pcik_params=problem.settings.pcik)
+    summary = {"strategy": "search", "n_stances": len(res.plan.stances), "moves": res.moves,
+               **res.stats.as_dict(), "time_s": round(time.perf_counter() - t0, 3)}
+    return StageResult(res.plan, summary)
+
+
 def contact_search(problem: Problem, path: GuidePath, *, restarts: int = 3, require_feasible: bool = False,
-                   seed: int = 0) -> StageResult:
-    """The stance sequence of the library's seed holds, each with its transition configuration:
+                   seed: int = 0, strategy: str = "primitives") -> StageResult:
+    """``strategy: search``: :func:`contact_search_search`. ``primitives``: the stance sequence of
+    the library's seed holds, each with its transition configuration:
     the guide milestone projected onto the stance (Algorithm 1 with ``restarts`` perturbed
     restarts and the physics-constrained IK repair), checked with the frozen feasibility check.
 
@@ -421,6 +491,8 @@ def contact_search(problem: Problem, path: GuidePath, *, restarts: int = 3, requ
     holds around it) and is listed in the summary, unless ``require_feasible``: then
     InfeasibleError names the stance and the constraint. SpecError when the guide path does not
     belong to this request (robot, joints, number of milestones)."""
+    if strategy_of(problem, strategy) == "search":
+        return contact_search_search(problem, path)
     from climb_core import feasibility
 
     from .adapt import AdaptContext, project
@@ -488,12 +560,32 @@ def _check_summary(res) -> dict:
 # stage 3: adaptation (multi-step search)
 
 
-def adapt(problem: Problem, contact_plan: ContactPlan | None = None, on_progress=None):
-    """Adapt-Primitive under the multi-step search for the request: ``(ClimbPlanResult, summary)``.
+def adapt_search(problem: Problem, contact_plan: ContactPlan, on_progress=None):
+    """``strategy: search``: each transition of the searched contact plan adapted from the library
+    primitive that fits it, else a generic contact-body path
+    (:func:`planner_node.climb_planner.plan_from_contact_plan`): ``(ClimbPlanResult, summary)``."""
+    from .climb_planner import plan_from_contact_plan
+
+    req = problem.request
+    res = plan_from_contact_plan(problem.robot, problem.env, contact_plan, library=problem.library,
+                                 settings=problem.settings, seed=req.seed, timeout_s=req.timeout_s,
+                                 on_progress=on_progress)
+    summary = res.summary()
+    summary.update(request_id=req.id, strategy="search", rungs_requested=req.rungs if problem.env.ladder else 0)
+    return res, summary
+
+
+def adapt(problem: Problem, contact_plan: ContactPlan | None = None, on_progress=None, strategy: str = "primitives"):
+    """``strategy: search``: :func:`adapt_search`. ``primitives``: Adapt-Primitive under the
+    multi-step search for the request: ``(ClimbPlanResult, summary)``.
     The result is what the in-process climb plans for the same request. ``contact_plan``: the
     contact search's seed stances, compared with the holds the search chose (summary
     ``seed_holds_changed``). InfeasibleError ``start:...`` when a measured start does not project
     onto its stance."""
+    if strategy_of(problem, strategy) == "search":
+        if contact_plan is None:
+            raise SpecError("contact_plan", "strategy 'search' adapts the contact search's plan: none given")
+        return adapt_search(problem, contact_plan, on_progress)
     from .climb_planner import plan_climb
     from .descend import up_and_down
 
