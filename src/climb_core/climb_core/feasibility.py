@@ -232,9 +232,11 @@ def _compile(robot: Any, env: Any, stance: Stance, cfg: FeasibilityConfig) -> _C
     limbs, fids, pts, offsets, targets, kinds, contacts = [], [], [], [], [], [], []
     off = 0
     for hold in stance.holds:
-        rs = holds_mod.limb_surface(robot, hold.limb)
+        rs = holds_mod.hold_surface(robot, hold)
         if len(hold.points) == 0:
             raise SpecError(f"stance.{hold.limb}.points", "a hold needs at least one contact point")
+        if hold.bilateral and rs.kind != "grasp":
+            raise SpecError(f"stance.{hold.limb}.bilateral", f"{rs.name} is a {rs.kind}: unilateral, it cannot pull")
         limbs.append(hold.limb)
         fids.append(robot.frame_id(rs.frame))
         pts.append(hold.positions)
@@ -246,7 +248,7 @@ def _compile(robot: Any, env: Any, stance: Stance, cfg: FeasibilityConfig) -> _C
             contacts.append((hold.limb, hold.env_surface))
         else:
             targets.append(None)
-            kinds.append("grasp" if hold.bilateral else "sole_flat")
+            kinds.append("grasp" if hold.bilateral else f"{rs.kind}_flat")
     nf = off
     rows, rcoef, up, lo, kind = [], [], [], [], []
     f_lo = np.full(nf, -p.unbounded_force)
@@ -291,20 +293,21 @@ def _compile(robot: Any, env: Any, stance: Stance, cfg: FeasibilityConfig) -> _C
             kind.append("normal")
     A = np.array(rows).reshape(-1, nf)
     kinds_arr = np.array(kind, dtype=object)
-    soles = [holds_mod.sole_vertices_in_surface(holds_mod.limb_surface(robot, h.limb)) if k == "sole_flat" else None
+    soles = [holds_mod.sole_vertices_in_surface(holds_mod.hold_surface(robot, h)) if k.endswith("_flat") else None
              for h, k in zip(stance.holds, kinds)]
     refs = []
     for hold, hkind, target, sole in zip(stance.holds, kinds, targets, soles):
-        rs = holds_mod.limb_surface(robot, hold.limb)
+        rs = holds_mod.hold_surface(robot, hold)
+        sign = holds_mod.polygon_normal_sign(robot, hold.limb, rs) if hkind != "grasp" else 1.0
         T_fs = np.array(rs.T_frame_surface, dtype=float)
         if hkind == "grasp":
             a = np.asarray(env.surfaces[hold.env_surface].T_world_surface, dtype=float)[:3, 0].copy() \
                 if env is not None else np.zeros(3)
             refs.append((T_fs, hkind, (holds_mod.grasp_axis_in_surface(rs), a, hold.centre)))
-        elif hkind == "sole_flat":
-            # the sole's z points out of the sole (sign +1) or into the foot (-1): out = -hold normal
-            out_normal = -holds_mod.sole_normal_sign(robot, hold.limb) * hold.points[0].normal
-            refs.append((T_fs, hkind, (sole, hold.positions, out_normal)))
+        elif hkind.endswith("_flat"):  # a sole or a palm polygon
+            # the polygon's z points out of the robot (sign +1) or into the foot (-1): out = -hold normal
+            out_normal = -sign * hold.points[0].normal
+            refs.append((T_fs, "polygon_flat", (sole, hold.positions, out_normal)))
         else:  # the rung line must lie under the sole, anywhere along the foot
             poly = holds_mod.sole_vertices_in_surface(rs)[:, :2]
             edges = np.roll(poly, -1, axis=0) - poly
@@ -313,7 +316,7 @@ def _compile(robot: Any, env: Any, stance: Stance, cfg: FeasibilityConfig) -> _C
             edge_offsets = np.einsum("ij,ij->i", normals, poly)
             centroid = poly.mean(axis=0)
             flip = np.where(normals @ centroid - edge_offsets > 0.0, -1.0, 1.0)  # outward normals
-            out_normal = -holds_mod.sole_normal_sign(robot, hold.limb) * hold.points[0].normal
+            out_normal = -sign * hold.points[0].normal
             refs.append((T_fs, hkind, (hold.positions, normals * flip[:, None], edge_offsets * flip, out_normal)))
     H = np.full(nf + 1, p.force_regularization)
     H[-1] = p.ratio_regularization
@@ -603,7 +606,7 @@ def contact_errors(ws: _Workspace, env: Any, cs: _CompiledStance) -> tuple[float
             d = p - centre
             pos = math.sqrt(float(d @ d))
             ang = math.acos(min(1.0, abs(float((R @ axis_s) @ a))))  # the grasp may hold either way round
-        elif kind == "sole_flat":  # ref: (sole corners in the surface frame, hold points, normal out of the sole)
+        elif kind == "polygon_flat":  # ref: (sole / palm corners in the surface frame, hold points, normal out)
             sole, points, out_normal = ref
             d = sole @ R.T + p - points
             pos = math.sqrt(float(np.max(np.einsum("ij,ij->i", d, d))))

@@ -16,6 +16,10 @@ Geometry (all world frame):
   two axis directions, the one with the limb frame (wrist side) lowest, or closest to a seed.
 - ``sole`` on a flat surface (ground plane, tread, platform, any box top): the sole corners of the
   target pose, normal = the surface's up normal; unilateral.
+- ``palm`` (a hand pushing, unilateral) on a flat or cylindrical surface: as a sole (its polygon
+  corners / 2 points on the top line), the palm's normal against the surface; kinds ``palm_flat``
+  and ``palm_cylinder``. Which surface a hand uses follows one rule, :func:`hand_surface_for`:
+  the grasp on a bilateral surface, the palm on any other.
 - ``sole`` on a cylinder: 2 points on top of the rung (the rung line under the sole), spaced by
   the sole width, normals from the rung axis toward the foot; unilateral. Target: the sole
   tangent to the rung on its top line, its centre (shifted by ``foot_on_rung_offset`` along the
@@ -68,7 +72,8 @@ class HoldTarget:
     T_world_surface: np.ndarray  # 4x4 target pose of the robot contact surface frame
     T_world_frame: np.ndarray  # 4x4 target pose of `frame`
     free_axis_in_surface: np.ndarray | None  # unit axis (surface frame) about which rotation is free (grasp), or None
-    kind: str  # sole_flat | sole_cylinder | grasp
+    kind: str  # sole_flat | sole_cylinder | palm_flat | palm_cylinder | grasp
+    robot_surface: str = ""  # name of the robot contact surface ("" = the limb's primary one)
 
 
 # --------------------------------------------------------------------------------------------
@@ -116,14 +121,50 @@ def _rot_about(axis: np.ndarray, angle: float) -> np.ndarray:
 # robot / environment lookups
 
 
-def limb_surface(robot: Any, limb: str) -> Any:
-    """The robot ContactSurface of ``limb``; SpecError for an unknown limb."""
+def limb_surface(robot: Any, limb: str, robot_surface: str | None = None) -> Any:
+    """The robot ContactSurface ``robot_surface`` of ``limb`` (default: its primary one, a foot's
+    sole, a hand's grasp); SpecError for an unknown limb or surface."""
     if limb not in LIMBS:
         raise SpecError("hold.limb", f"must be one of {', '.join(LIMBS)}; got {limb!r}")
     limbs = robot.config.limbs
     if limb not in limbs:
         raise SpecError("hold.limb", f"robot {robot.config.name!r} has no limb {limb!r}")
-    return limbs[limb].surface
+    if not robot_surface:
+        return limbs[limb].surface
+    surfaces = limbs[limb].surfaces
+    if robot_surface not in surfaces:
+        raise SpecError("hold.robot_surface", f"{robot.config.name} {limb} has no surface {robot_surface!r} "
+                                              f"(it has {', '.join(surfaces)})")
+    return surfaces[robot_surface]
+
+
+def hold_surface(robot: Any, hold: Hold) -> Any:
+    """The robot ContactSurface a hold is made with (``hold.robot_surface``)."""
+    return limb_surface(robot, hold.limb, hold.robot_surface or None)
+
+
+def hand_surface_for(robot: Any, limb: str, sf: Any, *, required: bool = True) -> Any:
+    """THE rule for a hand on an environment surface ``sf``: on a bilateral one (a rung, a bar, a
+    handle) it closes its grasp; on any other it pushes with its palm (unilateral). SpecError
+    (None with ``required=False``) when the hand has no surface of that kind."""
+    if limb not in HANDS:
+        raise SpecError("hold.limb", f"must be a hand ({', '.join(HANDS)}); got {limb!r}")
+    limb_surface(robot, limb)  # limb checks
+    kind = "grasp" if getattr(sf, "bilateral", False) else "palm"
+    surface = robot.config.limbs[limb].surface_of_kind(kind)
+    if surface is None and required:
+        why = "is bilateral (a grasp)" if kind == "grasp" else "is not bilateral (a palm push)"
+        raise SpecError("hold.robot_surface", f"{robot.config.name} {limb} has no {kind} surface; "
+                                              f"{getattr(sf, 'name', sf)!r} {why}")
+    return surface
+
+
+def robot_surface_for(robot: Any, limb: str, sf: Any, *, required: bool = True) -> Any:
+    """The robot surface ``limb`` touches ``sf`` with: a foot its sole, a hand per
+    :func:`hand_surface_for`."""
+    if limb in HANDS:
+        return hand_surface_for(robot, limb, sf, required=required)
+    return limb_surface(robot, limb)
 
 
 def env_surface(env: Any, surface_name: str) -> Any:
@@ -214,23 +255,27 @@ def _top_normal(axis: np.ndarray) -> np.ndarray:
 
 def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0, *,
                         position: np.ndarray | None = None, yaw: float | None = None,
-                        params: HoldParams | None = None, R_world_surface_seed: np.ndarray | None = None
-                        ) -> tuple[np.ndarray, str]:
+                        params: HoldParams | None = None, R_world_surface_seed: np.ndarray | None = None,
+                        robot_surface: str | None = None) -> tuple[np.ndarray, str]:
     """(T_world_surface target of the limb's contact surface frame, kind).
 
-    kind: ``grasp`` | ``sole_cylinder`` | ``sole_flat``. ``R_world_surface_seed`` (optional, the
-    current orientation of the robot surface) picks between the two grasp axis directions.
+    kind: ``grasp`` | ``sole_cylinder`` | ``sole_flat`` | ``palm_cylinder`` | ``palm_flat``.
+    ``R_world_surface_seed`` (optional, the current orientation of the robot surface) picks
+    between the two grasp axis directions. robot_surface: the limb's surface (default primary).
     """
     params = params or HoldParams()
-    rs = limb_surface(robot, limb)
+    rs = limb_surface(robot, limb, robot_surface)
     sf = env_surface(env, surface_name)
     forward = ladder_forward(env)
     if not math.isfinite(s):
         raise SpecError("hold.s", f"must be finite, got {s}")
     if rs.kind == "grasp":
-        if sf.shape != "cylinder":
-            raise SpecError("hold.env_surface", f"a hand grasp needs a cylinder (rung or rail); "
-                                                f"{surface_name!r} is a {sf.shape}")
+        bilateral = bool(getattr(sf, "bilateral", True))
+        if sf.shape != "cylinder" or not bilateral:
+            raise SpecError("hold.env_surface", f"a hand grasp ({rs.name}) needs a bilateral cylinder (rung, "
+                                                f"rail, bar); {surface_name!r} is a {sf.shape}"
+                                                + ("" if bilateral else ", not bilateral: a hand pushes on it "
+                                                   "with its palm"))
         _check_along(sf, s, surface_name)
         p0, a = _cylinder_axis(sf)
         centre = p0 + s * a
@@ -272,7 +317,7 @@ def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: f
         fwd = _unit(_perp(fwd, a)) if np.linalg.norm(_perp(fwd, a)) > 1e-9 else _unit(np.cross(a, n))
         centre = p0 + s * a + n * float(sf.radius) - fwd * params.foot_on_rung_offset
         R = _frame_from_zx(-sign * n, fwd)
-        return _pose(R, centre), "sole_cylinder"
+        return _pose(R, centre), f"{rs.kind}_cylinder"
     if sf.shape in ("plane", "box"):
         top, n, x_axis = _flat_top(sf)
         if sf.shape == "plane":
@@ -291,7 +336,7 @@ def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: f
         else:
             heading = _perp(np.array([math.cos(yaw), math.sin(yaw), 0.0]), n)
         R = _frame_from_zx(-sign * n, heading)
-        return _pose(R, centre), "sole_flat"
+        return _pose(R, centre), f"{rs.kind}_flat"
     raise SpecError("hold.env_surface", f"cannot stand on a {sf.shape} ({surface_name!r})")
 
 
@@ -301,9 +346,10 @@ def _check_along(sf: Any, s: float, surface_name: str, axis_length: float | None
         raise SpecError("hold.s", f"must lie on {surface_name!r}: |s| <= {0.5 * length:.3f} m, got {s}")
 
 
-def frame_pose_from_surface(robot: Any, limb: str, T_world_surface: np.ndarray) -> np.ndarray:
+def frame_pose_from_surface(robot: Any, limb: str, T_world_surface: np.ndarray,
+                            robot_surface: str | None = None) -> np.ndarray:
     """Pose of the limb's frame for a given pose of its contact surface frame."""
-    rs = limb_surface(robot, limb)
+    rs = limb_surface(robot, limb, robot_surface)
     return np.asarray(T_world_surface) @ _inv(np.asarray(rs.T_frame_surface))
 
 
@@ -314,18 +360,21 @@ def frame_pose_from_surface(robot: Any, limb: str, T_world_surface: np.ndarray) 
 def make_hold(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0, *,
               position: np.ndarray | None = None, yaw: float | None = None,
               friction: float | None = None, grip_force_limit: float | None = None,
-              params: HoldParams | None = None, R_world_surface_seed: np.ndarray | None = None) -> Hold:
+              params: HoldParams | None = None, R_world_surface_seed: np.ndarray | None = None,
+              robot_surface: str | None = None) -> Hold:
     """The hold of ``limb`` on the environment surface ``surface_name``.
 
     s: position along the surface axis from its centre [m] (rungs, rails, treads); position /
-    yaw: sole centre [m] and heading [rad] on the ground plane. friction defaults to the
-    surface's, grip_force_limit to the robot's grip strength [N].
+    yaw: sole (palm) centre [m] and heading [rad] on a plane or box top. friction defaults to the
+    surface's, grip_force_limit to the robot's grip strength [N]. robot_surface: the limb's
+    surface making the hold (default: the primary one; :func:`robot_surface_for` gives the rule).
     """
     params = params or HoldParams()
-    rs = limb_surface(robot, limb)
+    rs = limb_surface(robot, limb, robot_surface)
     sf = env_surface(env, surface_name)
     T, kind = surface_target_pose(robot, env, limb, surface_name, s, position=position, yaw=yaw,
-                                  params=params, R_world_surface_seed=R_world_surface_seed)
+                                  params=params, R_world_surface_seed=R_world_surface_seed,
+                                  robot_surface=rs.name)
     mu = float(sf.friction if friction is None else friction)
     if not (math.isfinite(mu) and mu > 0.0):
         raise SpecError("hold.friction", f"must be a positive finite number, got {mu}")
@@ -348,7 +397,7 @@ def make_hold(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0
             raise SpecError("hold.limb", f"only hands grasp; got {limb!r}")
         return Hold(limb=limb, robot_surface=rs.name, env_surface=surface_name, points=tuple(pts),
                     friction=mu, bilateral=True, grip_force_limit=grip)
-    if kind == "sole_cylinder":
+    if kind.endswith("_cylinder"):
         p0, a = _cylinder_axis(sf)
         n = _top_normal(a)
         centre_line = p0 + a * float(a @ (T[:3, 3] - p0)) + n * float(sf.radius)
@@ -366,12 +415,14 @@ def make_hold(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0
 
 
 def hold_from_configuration(robot: Any, env: Any, q: np.ndarray, limb: str, surface_name: str, *,
-                            params: HoldParams | None = None, **kwargs: Any) -> Hold:
+                            params: HoldParams | None = None, robot_surface: str | None = None,
+                            **kwargs: Any) -> Hold:
     """The hold of ``limb`` on ``surface_name`` closest to where the limb is at ``q`` (its contact
-    surface projected on the environment surface)."""
+    surface, default the primary one, projected on the environment surface)."""
     import pinocchio as pin
 
-    rs = limb_surface(robot, limb)
+    rs = limb_surface(robot, limb, robot_surface)
+    kwargs["robot_surface"] = rs.name
     sf = env_surface(env, surface_name)
     data = robot.model.createData()
     pin.framesForwardKinematics(robot.model, data, np.asarray(q, dtype=float))
@@ -394,31 +445,38 @@ def hold_from_configuration(robot: Any, env: Any, q: np.ndarray, limb: str, surf
 
 
 def hold_kind(robot: Any, env: Any, hold: Hold) -> str:
-    rs = limb_surface(robot, hold.limb)
+    """grasp | sole_cylinder | sole_flat | palm_cylinder | palm_flat."""
+    rs = hold_surface(robot, hold)
     sf = env_surface(env, hold.env_surface)
     if rs.kind == "grasp":
         return "grasp"
-    return "sole_cylinder" if sf.shape == "cylinder" else "sole_flat"
+    return f"{rs.kind}_cylinder" if sf.shape == "cylinder" else f"{rs.kind}_flat"
+
+
+def polygon_normal_sign(robot: Any, limb: str, surface: Any) -> float:
+    """+1 if a polygon surface's z points out of the robot (palms, most soles), -1 if a sole's z
+    points into the foot (:func:`sole_normal_sign`)."""
+    return sole_normal_sign(robot, limb) if surface.kind == "sole" else 1.0
 
 
 def hold_target(robot: Any, env: Any, hold: Hold, *, params: HoldParams | None = None,
                 R_world_surface_seed: np.ndarray | None = None) -> HoldTarget:
     """The limb pose that realises ``hold`` (reconstructed from its points)."""
-    rs = limb_surface(robot, hold.limb)
+    rs = hold_surface(robot, hold)
     sf = env_surface(env, hold.env_surface)
     kind = hold_kind(robot, env, hold)
     params = params or HoldParams()
-    if kind in ("grasp", "sole_cylinder"):
+    if kind == "grasp" or kind.endswith("_cylinder"):
         p0, a = _cylinder_axis(sf)
         s = float(a @ (hold.centre - p0))
         T, _ = surface_target_pose(robot, env, hold.limb, hold.env_surface, s, params=params,
-                                   R_world_surface_seed=R_world_surface_seed)
+                                   R_world_surface_seed=R_world_surface_seed, robot_surface=rs.name)
     else:
         T = _fit_sole_pose(robot, hold, rs)
     free = grasp_axis_in_surface(rs) if kind == "grasp" else None
     return HoldTarget(limb=hold.limb, frame=rs.frame, T_world_surface=T,
-                      T_world_frame=frame_pose_from_surface(robot, hold.limb, T),
-                      free_axis_in_surface=free, kind=kind)
+                      T_world_frame=frame_pose_from_surface(robot, hold.limb, T, rs.name),
+                      free_axis_in_surface=free, kind=kind, robot_surface=rs.name)
 
 
 def _fit_sole_pose(robot: Any, hold: Hold, rs: Any) -> np.ndarray:
@@ -441,5 +499,5 @@ def target_frame_pose(robot: Any, env: Any, limb: str, surface_name: str, s: flo
     """T_world_frame of the limb's end-effector frame for a hold on ``surface_name`` at ``s``."""
     params = kwargs.pop("params", None)
     T, _ = surface_target_pose(robot, env, limb, surface_name, s, params=params, **kwargs)
-    return frame_pose_from_surface(robot, limb, T)
+    return frame_pose_from_surface(robot, limb, T, kwargs.get("robot_surface"))
 

@@ -149,14 +149,18 @@ def _contact_tasks(robot: Any, env: Any, data: pin.Data, targets: Stance | Mappi
                                     else list(targets.items()))
     out = []
     for limb, spec in items:
-        rs = holds_mod.limb_surface(robot, limb)
+        # the surface the hold is made with (a hand's grasp or palm); a bare pose: the primary one
+        if isinstance(spec, Hold):
+            rs = holds_mod.hold_surface(robot, spec)
+        else:
+            rs = holds_mod.limb_surface(robot, limb, getattr(spec, "robot_surface", None) or None)
         fid = robot.frame_id(rs.frame)
         T_fs = np.asarray(rs.T_frame_surface)
         if isinstance(spec, holds_mod.HoldTarget):
             ht = spec
         elif isinstance(spec, np.ndarray) and spec.shape == (4, 4):
-            ht = holds_mod.HoldTarget(limb, rs.frame, spec, holds_mod.frame_pose_from_surface(robot, limb, spec),
-                                      None, "pose")
+            ht = holds_mod.HoldTarget(limb, rs.frame, spec, holds_mod.frame_pose_from_surface(robot, limb, spec, rs.name),
+                                      None, "pose", rs.name)
         else:
             if env is None:
                 raise SpecError("ik.targets", "holds need the environment they are on")
@@ -240,7 +244,8 @@ def solve(robot: Any, env: Any, q_seed: np.ndarray, targets: Stance | Mapping[st
           params: IKParams | None = None, hold_params: holds_mod.HoldParams | None = None) -> IKResult:
     """Configuration putting every limb of ``targets`` on its hold.
 
-    targets: a Stance (its holds), or limb -> Hold | holds.HoldTarget | 4x4 T_world_surface.
+    targets: a Stance (its holds), or limb -> Hold | holds.HoldTarget | 4x4 T_world_surface (of the
+    limb's primary surface; a hold or a HoldTarget names its own robot surface).
     posture: (nq,) configuration whose actuated joints regularise the solution (default q_seed).
     com_target: (2,) world x, y or (3,) x, y, z of the centre of mass [m] (soft task).
     """

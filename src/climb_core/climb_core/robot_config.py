@@ -116,9 +116,19 @@ class ContactSurface:
 @dataclass(frozen=True)
 class Limb:
     name: str  # left_foot | right_foot | left_hand | right_hand
-    surface: ContactSurface
+    surface: ContactSurface  # the primary surface (a foot's sole, a hand's grasp)
     ft_sensor: str  # key of RobotConfig.ft_sensors
     joints: tuple[str, ...]  # whole-body joints from the root to the end effector
+    extra_surfaces: tuple[ContactSurface, ...] = ()  # more surfaces on the same frame (a hand's palm)
+
+    @property
+    def surfaces(self) -> dict[str, ContactSurface]:
+        """Every contact surface of the limb by name, the primary first."""
+        return {s.name: s for s in (self.surface,) + self.extra_surfaces}
+
+    def surface_of_kind(self, kind: str) -> ContactSurface | None:
+        """The limb's surface of ``kind`` (sole | palm | grasp), or None (one per kind)."""
+        return next((s for s in self.surfaces.values() if s.kind == kind), None)
 
 
 @dataclass(frozen=True)
@@ -507,7 +517,8 @@ def parse_robot_config(data: Any, config_path: pathlib.Path | None = None) -> Ro
 def _parse_limb(limb: str, raw: Any, tree: _UrdfTree, ft_sensors: dict[str, str],
                 whole_body: tuple[str, ...]) -> Limb:
     path = f"limbs.{limb}"
-    raw = _mapping(raw, path, ("frame", "ft_sensor", "surface"), required=("frame", "ft_sensor", "surface"))
+    raw = _mapping(raw, path, ("frame", "ft_sensor", "surface", "extra_surfaces"),
+                   required=("frame", "ft_sensor", "surface"))
     frame = _string(raw["frame"], f"{path}.frame")
     if frame not in tree.links:
         raise SpecError(f"{path}.frame", f"{frame!r} is not a URDF link")
@@ -519,9 +530,27 @@ def _parse_limb(limb: str, raw: Any, tree: _UrdfTree, ft_sensors: dict[str, str]
         raise SpecError(f"{path}.ft_sensor",
                         f"joint {ft_sensors[sensor]!r} does not carry {frame!r} (not on its chain)")
     joints = tuple(j.name for j in chain if j.name in whole_body)
+    primary = _parse_surface(limb, raw["surface"], f"{path}.surface", frame)
+    extras_raw = raw.get("extra_surfaces") or []
+    if not isinstance(extras_raw, list):
+        raise SpecError(f"{path}.extra_surfaces", "must be a list of surfaces")
+    extras: list[ContactSurface] = []
+    for i, e in enumerate(extras_raw):
+        e_path = f"{path}.extra_surfaces[{i}]"
+        surface = _parse_surface(limb, e, e_path, frame)
+        for other in [primary] + extras:
+            if other.name == surface.name:
+                raise SpecError(f"{e_path}.name", f"{surface.name!r} is already a surface of {limb}")
+            if other.kind == surface.kind:
+                raise SpecError(f"{e_path}.kind", f"{limb} already has a {surface.kind} ({other.name!r}): "
+                                                  "one surface per kind and limb")
+        extras.append(surface)
+    return Limb(limb, primary, sensor, joints, tuple(extras))
 
-    s_path = f"{path}.surface"
-    s = _mapping(raw["surface"], s_path)
+
+def _parse_surface(limb: str, raw: Any, s_path: str, frame: str) -> ContactSurface:
+    """One contact surface of ``limb`` (attached to the limb's frame) from its YAML mapping."""
+    s = _mapping(raw, s_path)
     kind = _string(s.get("kind"), f"{s_path}.kind")
     if kind not in _SURFACE_KINDS:
         raise SpecError(f"{s_path}.kind", f"must be one of {', '.join(_SURFACE_KINDS)}")
@@ -530,24 +559,19 @@ def _parse_limb(limb: str, raw: Any, tree: _UrdfTree, ft_sensors: dict[str, str]
     if limb in HANDS and kind == "sole":
         raise SpecError(f"{s_path}.kind", "a hand's surface must be a grasp or a palm")
     name = _string(s.get("name"), f"{s_path}.name")
-
-    if kind in ("sole", "palm"):
+    if kind == "sole":
         _mapping(s, s_path, ("name", "kind", "vertices"), required=("vertices",))
-        verts_raw = s["vertices"]
-        if not isinstance(verts_raw, list) or len(verts_raw) != 4:
-            raise SpecError(f"{s_path}.vertices", "must be a list of 4 corners [x, y, z]")
-        v = np.array([_vector(c, f"{s_path}.vertices[{i}]") for i, c in enumerate(verts_raw)])
+        v = _quad(s["vertices"], f"{s_path}.vertices")
         if np.ptp(v[:, 2]) > 1e-9:
             raise SpecError(f"{s_path}.vertices", "corners must share one z (a plane z = const of the frame)")
-        area2 = [np.cross(v[(i + 1) % 4, :2] - v[i, :2], v[(i + 2) % 4, :2] - v[(i + 1) % 4, :2])
-                 for i in range(4)]
-        if min(area2) <= 0:
-            raise SpecError(f"{s_path}.vertices", "corners must form a convex polygon, counter-clockwise from +z")
+        _check_convex(v, np.array([0.0, 0.0, 1.0]), f"{s_path}.vertices", "counter-clockwise from +z")
         T = np.eye(4)
         T[:3, :3] = np.diag([1.0, -1.0, -1.0])  # z out of the sole (down), x forward
         T[:3, 3] = v.mean(axis=0)
-        return Limb(limb, ContactSurface(name, frame, kind, _frozen_array(v), 0.0, 0.0,
-                                         _frozen_array(np.zeros(3)), _frozen_array(T)), sensor, joints)
+        return ContactSurface(name, frame, kind, _frozen_array(v), 0.0, 0.0, _frozen_array(np.zeros(3)),
+                              _frozen_array(T))
+    if kind == "palm":
+        return _parse_palm(s, s_path, name, frame)
 
     _mapping(s, s_path, ("name", "kind", "centre", "axis", "normal", "radius", "length"),
              required=("centre", "axis", "normal", "radius", "length"))
@@ -561,8 +585,40 @@ def _parse_limb(limb: str, raw: Any, tree: _UrdfTree, ft_sensors: dict[str, str]
     T = np.eye(4)
     T[:3, 0], T[:3, 1], T[:3, 2] = axis, np.cross(normal, axis), normal
     T[:3, 3] = centre
-    return Limb(limb, ContactSurface(name, frame, kind, _frozen_array(np.zeros((0, 3))), radius, length,
-                                     _frozen_array(axis), _frozen_array(T)), sensor, joints)
+    return ContactSurface(name, frame, kind, _frozen_array(np.zeros((0, 3))), radius, length,
+                          _frozen_array(axis), _frozen_array(T))
+
+
+def _parse_palm(s: dict, s_path: str, name: str, frame: str) -> ContactSurface:
+    """A palm: 4 coplanar corners and the normal out of the palm (unilateral, like a sole). The
+    surface frame: origin at the corners' centroid, z = normal, x along the first edge."""
+    _mapping(s, s_path, ("name", "kind", "vertices", "normal"), required=("vertices", "normal"))
+    v = _quad(s["vertices"], f"{s_path}.vertices")
+    normal = _unit(s["normal"], f"{s_path}.normal")
+    centre = v.mean(axis=0)
+    if np.max(np.abs((v - centre) @ normal)) > 1e-6:
+        raise SpecError(f"{s_path}.vertices", "corners must lie in one plane perpendicular to the normal")
+    _check_convex(v, normal, f"{s_path}.vertices", "counter-clockwise seen from the normal's side")
+    x = (v[1] - v[0]) - normal * float((v[1] - v[0]) @ normal)
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2] = x, np.cross(normal, x), normal
+    T[:3, 3] = centre
+    return ContactSurface(name, frame, "palm", _frozen_array(v), 0.0, 0.0, _frozen_array(np.zeros(3)),
+                          _frozen_array(T))
+
+
+def _quad(value: Any, path: str) -> np.ndarray:
+    if not isinstance(value, list) or len(value) != 4:
+        raise SpecError(path, "must be a list of 4 corners [x, y, z]")
+    return np.array([_vector(c, f"{path}[{i}]") for i, c in enumerate(value)])
+
+
+def _check_convex(v: np.ndarray, normal: np.ndarray, path: str, orientation: str) -> None:
+    """The corners ``v`` (4, 3) form a convex polygon, counter-clockwise about ``normal``."""
+    turns = [float(np.cross(v[(i + 1) % 4] - v[i], v[(i + 2) % 4] - v[(i + 1) % 4]) @ normal) for i in range(4)]
+    if min(turns) <= 0:
+        raise SpecError(path, f"corners must form a convex polygon, {orientation}")
 
 
 def _parse_pwm(raw: Any, whole_body: tuple[str, ...]) -> PwmGains:

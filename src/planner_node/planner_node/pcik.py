@@ -61,6 +61,9 @@ class ContactSpec:
     surface: str | None = None  # floating: environment surface name
     preferred_position: np.ndarray | None = None  # floating: [m] world point the contact is pulled toward
     soft: bool = False  # a design cue: the pose is a strongly weighted cost (``cue_weight``), not a constraint
+    robot_surface: str | None = None  # the limb's contact surface; default: the hold's, else for a
+    #                                   floating hand holds.hand_surface_for (grasp if bilateral, else palm),
+    #                                   else the limb's primary one (``pose`` is that surface's)
 
     def __post_init__(self) -> None:
         if self.type not in CONTACT_TYPES:
@@ -71,10 +74,26 @@ class ContactSpec:
             raise SpecError("contact.hold", "a zero-force contact needs a hold or a pose")
         if self.type == FLOATING and not self.surface:
             raise SpecError("contact.surface", "a floating contact needs an environment surface")
+        if self.robot_surface and self.hold is not None and self.hold.robot_surface != self.robot_surface:
+            raise SpecError("contact.robot_surface", f"{self.robot_surface!r} but the hold is made with "
+                                                     f"{self.hold.robot_surface!r}")
 
     @property
     def env_surface(self) -> str | None:
         return self.hold.env_surface if self.hold is not None else self.surface
+
+
+def contact_surface(robot: Any, env: Any, c: ContactSpec) -> Any:
+    """The robot ContactSurface contact ``c`` is made with (see ``ContactSpec.robot_surface``)."""
+    if c.hold is not None:
+        return holds_mod.hold_surface(robot, c.hold)
+    if c.robot_surface:
+        return holds_mod.limb_surface(robot, c.limb, c.robot_surface)
+    if c.type == FLOATING and env is not None:
+        rs = holds_mod.robot_surface_for(robot, c.limb, holds_mod.env_surface(env, c.surface), required=False)
+        if rs is not None:
+            return rs
+    return holds_mod.limb_surface(robot, c.limb)
 
 
 def contacts_from_stance(stance: Stance) -> list[ContactSpec]:
@@ -129,18 +148,28 @@ class _ContactRows:
                  q: np.ndarray):
         self.robot, self.env, self.contacts, self.hold_params = robot, env, list(contacts), hold_params
         self.fixed_targets: dict[str, Any] = {}
+        self.surfaces = {c.limb: contact_surface(robot, env, c) for c in self.contacts}
         for c in self.contacts:
             if c.type == FLOATING:
                 continue
             # an explicit pose wins (a regular contact may pin the free grasp roll with one)
-            self.fixed_targets[c.limb] = np.asarray(c.pose, dtype=float) if c.pose is not None else c.hold
+            if c.pose is None:
+                self.fixed_targets[c.limb] = c.hold
+            elif c.robot_surface:
+                rs = self.surfaces[c.limb]
+                T = np.asarray(c.pose, dtype=float)
+                self.fixed_targets[c.limb] = holds_mod.HoldTarget(
+                    c.limb, rs.frame, T, holds_mod.frame_pose_from_surface(robot, c.limb, T, rs.name), None, "pose",
+                    rs.name)
+            else:
+                self.fixed_targets[c.limb] = np.asarray(c.pose, dtype=float)
         self.tasks = core_ik.contact_tasks(robot, env, q, self.fixed_targets, hold_params) if self.fixed_targets else []
         self.floating = [c for c in self.contacts if c.type == FLOATING]
 
     def _floating_tasks(self, data: pin.Data) -> tuple[list, list[tuple[ContactSpec, int, np.ndarray]]]:
         tasks, pulls = [], []
         for c in self.floating:
-            rs = holds_mod.limb_surface(self.robot, c.limb)
+            rs = self.surfaces[c.limb]
             fid = self.robot.frame_id(rs.frame)
             pin.updateFramePlacement(self.robot.model, data, fid)
             T_ws = data.oMf[fid].homogeneous @ np.asarray(rs.T_frame_surface)
@@ -152,7 +181,8 @@ class _ContactRows:
                 half = 0.5 * float(sf.length) - 0.05
                 s = float(np.clip(s, -half, half)) if half > 0 else 0.0
                 T_t, kind = holds_mod.surface_target_pose(self.robot, self.env, c.limb, c.surface, s,
-                                                          params=self.hold_params, R_world_surface_seed=T_ws[:3, :3])
+                                                          params=self.hold_params, R_world_surface_seed=T_ws[:3, :3],
+                                                          robot_surface=rs.name)
                 a_s = T_t[:3, :3].T @ a  # rung axis in the target surface frame
                 free_pos = a_s[None, :]
                 free_rot = holds_mod.grasp_axis_in_surface(rs)[None, :] if kind == "grasp" else None
@@ -161,10 +191,12 @@ class _ContactRows:
                 yaw = math.atan2(heading[1], heading[0])
                 if sf.shape == "box":
                     T_t, kind = holds_mod.surface_target_pose(self.robot, self.env, c.limb, c.surface, 0.0,
-                                                              position=T_ws[:3, 3], yaw=yaw, params=self.hold_params)
+                                                              position=T_ws[:3, 3], yaw=yaw, params=self.hold_params,
+                                                              robot_surface=rs.name)
                 else:
                     T_t, kind = holds_mod.surface_target_pose(self.robot, self.env, c.limb, c.surface,
-                                                              position=T_ws[:3, 3], yaw=yaw, params=self.hold_params)
+                                                              position=T_ws[:3, 3], yaw=yaw, params=self.hold_params,
+                                                              robot_surface=rs.name)
                 free_pos = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # in-plane (surface frame x, y)
                 free_rot = np.array([[0.0, 0.0, 1.0]])  # heading about the normal
             task = core_ik.ContactTask(c.limb, fid, pin.SE3(np.asarray(rs.T_frame_surface)), pin.SE3(T_t),
@@ -202,7 +234,8 @@ class _ContactRows:
                 out[c.limb] = c.hold
             elif c.type == FLOATING:
                 out[c.limb] = holds_mod.hold_from_configuration(self.robot, self.env, q, c.limb, c.surface,
-                                                                params=self.hold_params)
+                                                                params=self.hold_params,
+                                                                robot_surface=self.surfaces[c.limb].name)
         return out
 
 
@@ -647,5 +680,5 @@ def describe_failure(result: PCIKResult) -> str:
     return f"{detail} (contact error {result.position_error * 1e3:.1f} mm, {math.degrees(result.angle_error):.1f} deg)"
 
 
-__all__ = ["ContactSpec", "PCIKResult", "REGULAR", "ZERO_FORCE", "FLOATING", "solve", "contacts_from_stance",
+__all__ = ["ContactSpec", "PCIKResult", "contact_surface", "REGULAR", "ZERO_FORCE", "FLOATING", "solve", "contacts_from_stance",
            "check_with_exclusions", "collision_rows", "static_torque_derivative", "feasibility_config_for"]
