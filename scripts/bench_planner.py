@@ -7,6 +7,11 @@ IK (Algorithm 1), the physics-constrained IK and the path checks (AdaptStats of 
 Baseline measured in the same run: the configurations of the default ladder's plan re-checked
 with the planner's feasibility check as it runs (bounding-volume culling before the coal hull
 distances) and with the culling disabled (every one of the ~1466 hull pairs through coal).
+Then the DARPA-tasks paper's planners (``strategy: search``): the free-flyer guide path of the
+default ladder (3 rungs) and of narrow_passage (best of 3), and the best-first contact search of
+3 rungs of the default ladder from standing on the ground, through the guide path's milestones,
+with the primitive library made unloadable (no hints): its time, nodes expanded, IK calls and IK
+calls per second (--search-runs runs, the median; --no-search skips it).
 The last line is one JSON object (units in the keys).
 
     .venv/bin/python scripts/bench_planner.py [--runs 3] [--ladders default,72/0.23,70/0.32] [--timeout 120]
@@ -86,6 +91,40 @@ def check_baseline(robot, env, plan, settings, max_configs: int) -> dict:
     return out
 
 
+def search_figures(robot, runs: int) -> dict:
+    """Guide path and contact search figures (``strategy: search``, G1, default ladder 3 rungs)."""
+    from climb_core import fixtures
+    from climb_core.environment import build_environment
+    from planner_node import contact_search, guide_path, primitives
+
+    out = dict(guide_path.bench_figures())
+    env = build_environment("default")
+    stance0, q0 = fixtures.get("standing", robot, env)
+    path = guide_path.plan_for_environment(robot, env, q0, rungs=3).path
+
+    def no_library(*args, **kwargs):
+        raise RuntimeError("the contact search read the primitive library")
+
+    real, primitives.load_library = primitives.load_library, no_library
+    try:
+        rows = []
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            res = contact_search.search(robot, env, q0, stance0, path)
+            rows.append((time.perf_counter() - t0, res.stats))
+    finally:
+        primitives.load_library = real
+    wall = statistics.median(r[0] for r in rows)
+    st = rows[len(rows) // 2][1]
+    print(f"guide path: default ladder 3 rungs {out['guide_path_default_s']:.3f} s, narrow_passage "
+          f"{out['guide_path_narrow_passage_s']:.3f} s | contact search 3 rungs (no primitives, {len(path.milestones)} "
+          f"milestones): median {wall:.1f} s over {runs}, {st.nodes_expanded} nodes expanded, {st.ik_calls} IK calls, "
+          f"{st.ik_calls_per_s:.1f} IK calls/s", flush=True)
+    out.update(contact_search_3_rungs_s=round(wall, 2), contact_search_nodes_expanded=st.nodes_expanded,
+               contact_search_ik_calls=st.ik_calls, contact_search_ik_calls_per_s=round(st.ik_calls_per_s, 2))
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=3, help="plans per ladder (the medians are over these)")
@@ -95,6 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=2, help="climbing cycles after the mount")
     ap.add_argument("--timeout", type=float, default=120.0, help="planning wall-time limit per plan [s]")
     ap.add_argument("--grid", type=pathlib.Path, default=GRID, help="grid file (its `base` scenario)")
+    ap.add_argument("--search-runs", type=int, default=3, help="contact searches (the median is over these)")
+    ap.add_argument("--no-search", action="store_true", help="skip the guide path / contact search figures")
     ap.add_argument("--baseline-configs", type=int, default=300,
                     help="configurations of the first ladder's plan re-checked for the baseline")
     args = ap.parse_args(argv)
@@ -143,6 +184,8 @@ def main(argv: list[str] | None = None) -> int:
               f"(feasible {b['culled_feasible']} / {b['no_cull_feasible']})")
         summary["check_cpu_ms"] = round(b["culled"], 4)
         summary["check_no_cull_cpu_ms"] = round(b["no_cull"], 4)
+    if not args.no_search:
+        summary.update(search_figures(robot, max(1, args.search_runs)))
     print(json.dumps(summary))
     return 0
 
