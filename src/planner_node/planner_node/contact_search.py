@@ -37,9 +37,11 @@ and comparable across robots. The joints enter with a small weight (per radian, 
 number of joints does not matter): they separate postures that put the limbs at the same places
 without dominating the task-space terms. A node's priority is d to the milestone, plus
 ``floating_cost_weight`` times the floating limb's distance to its milestone position (the paper's
-cost of an added contact), where a limb without a contact counts ``free_limb_cost`` instead of its
-distance (it is free to go to its milestone place next: removing the contact of a limb far from
-its place ranks high, removing one already there ranks low).
+cost of an added contact), where a limb without a contact counts, instead of its distance, the
+least it can be once placed again (its milestone place's distance to the closest surface that
+accepts it) plus ``free_limb_cost``: removing the contact of a limb far from where it can go
+ranks high, removing one already there ranks low, and a milestone whose limbs are in the air (a
+guide path's in-between posture) does not make every removal look promising.
 
 Deterministic: ties in the queue are broken by insertion order, candidates are enumerated in a
 fixed order, and the IK is deterministic. Bounded by ``time_limit_s`` and ``max_nodes``; a
@@ -153,10 +155,12 @@ class _Kinematics:
 
 @dataclass(frozen=True)
 class _Target:
-    """A milestone: its configuration and its limb positions."""
+    """A milestone: its configuration, its limb positions and, per limb, the distance from that
+    position to the closest surface the limb may be placed on (the least a hold can be away)."""
 
     q: np.ndarray
     limbs: dict[str, np.ndarray]
+    floor: dict[str, float] = field(default_factory=dict)
 
 
 def distance_terms(q: np.ndarray, limbs: dict[str, np.ndarray], target: _Target,
@@ -246,6 +250,8 @@ class _Search:
         self.robot, self.env, self.params = robot, env, params
         if params.ik_floating_weight > 0.0:  # the added contact lands at its milestone place
             pcik_params = dataclasses.replace(pcik_params, floating_weight=params.ik_floating_weight)
+        if params.ik_max_iterations > 0:
+            pcik_params = dataclasses.replace(pcik_params, max_iterations=params.ik_max_iterations)
         self.pcik_params = pcik_params
         self.cfg = feasibility_cfg or feasibility.load_config()
         self.kin = _Kinematics(robot)
@@ -253,6 +259,12 @@ class _Search:
         self.stats = SearchStats()
         self.t0 = time.perf_counter()
         self.best: tuple[float, int] = (math.inf, -1)  # closest distance to the milestone, its index
+
+    def target(self, q: np.ndarray) -> _Target:
+        limbs = self.kin.limb_positions(q)
+        floor = {limb: min((surface_distance(sf, p) for sf in self.surfaces[limb]), default=math.inf)
+                 for limb, p in limbs.items()}
+        return _Target(q, limbs, floor)
 
     # ---- budget
     def _out_of_budget(self) -> str:
@@ -282,8 +294,9 @@ class _Search:
     def _priority(self, node: Node, target: _Target, after: _Target | None = None,
                   floating: tuple[str, np.ndarray] | None = None) -> float:
         """Node cost: the distance of the limbs in contact counted at their places, each free
-        limb at ``free_limb_cost`` (it may go anywhere next: a removal that frees a limb far from
-        its milestone place ranks high), plus the added contact's distance to its preferred place;
+        limb at the least it can be once placed again (its milestone place's distance to the
+        closest surface accepting it) plus ``free_limb_cost``, plus the added contact's distance
+        to its preferred place;
         with ``lookahead``, the smaller of that cost to the targeted milestone and to the next."""
         limbs = self.kin.limb_positions(node.q)
         held = set(node.stance.limbs)
@@ -293,8 +306,9 @@ class _Search:
             if k == 0:
                 node.distance = base + joints + self.params.limb_weight * sum(per_limb.values())
                 node.base_distance = base
-            cost = (base + joints + self.params.limb_weight * sum(d for j, d in per_limb.items() if j in held)
-                    + self.params.free_limb_cost * sum(1 for j in per_limb if j not in held))
+            cost = base + joints + self.params.limb_weight * sum(
+                d if j in held else t.floor.get(j, 0.0) for j, d in per_limb.items())
+            cost += self.params.free_limb_cost * sum(1 for j in per_limb if j not in held)
             if floating is not None:
                 limb, _ = floating
                 cost += self.params.floating_cost_weight * float(np.linalg.norm(limbs[limb] - t.limbs[limb]))
@@ -440,8 +454,7 @@ def search(robot: Any, env: Any, q_start: np.ndarray, stance_start: Stance, path
     s = _Search(robot, env, params, pcik_params, feasibility_cfg)
     node = Node(stance_start, np.asarray(q_start, dtype=float).copy())
     reached: list[Node] = []
-    targets = [_Target(np.asarray(m, dtype=float), s.kin.limb_positions(np.asarray(m, dtype=float)))
-               for m in path.milestones]
+    targets = [s.target(np.asarray(m, dtype=float)) for m in path.milestones]
     for i, target in enumerate(targets):
         node = s.to_milestone(node, target, i, targets[i + 1] if i + 1 < len(targets) else None)
         reached.append(node)

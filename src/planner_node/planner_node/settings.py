@@ -173,11 +173,13 @@ class ContactSearchParams:
         "contacts are removed only from sets with more than this (3: the quasi-static climbing gait)"))
     ik_floating_weight: float = param(100.0, unit="1/m^2", min=0.0, description=(
         "the search's IK: cost of the added contact's distance to its milestone place (0: pcik.floating_weight)"))
+    ik_max_iterations: int = param(20, unit="-", min=0, description=(
+        "the search's IK: SQP iterations of one call (0: pcik.max_iterations); the final check decides success"))
     reach_margin: float = param(0.02, unit="m", min=0.0, description=(
         "reach pruning: a surface farther than the limb's length plus this from its root is not tried"))
-    max_surfaces_per_limb: int = param(3, unit="-", min=0, description=(
+    max_surfaces_per_limb: int = param(2, unit="-", min=0, description=(
         "a free limb tries the surfaces within reach closest to its milestone place, at most this many (0: all)"))
-    key_resolution: float = param(0.02, unit="m", min=1.0e-4, description=(
+    key_resolution: float = param(0.05, unit="m", min=1.0e-4, description=(
         "visited sets: hold centres rounded to this grid (limb -> surface + position)"))
 
 
