@@ -96,6 +96,26 @@ def contact_surface(robot: Any, env: Any, c: ContactSpec) -> Any:
     return holds_mod.limb_surface(robot, c.limb)
 
 
+def _onto_top_face(sf: Any, rs: Any, p: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """``p`` moved into the top face of box ``sf`` so that the robot polygon ``rs`` (a sole or a
+    palm, its circumradius) stays on the face, and the face axes (world) along which it was moved."""
+    T = np.asarray(sf.T_world_surface)
+    R, half = T[:3, :3], np.asarray(sf.half_extents, dtype=float)
+    up = int(np.argmax(np.abs(R[2, :])))
+    v = holds_mod.sole_vertices_in_surface(rs)
+    radius = float(np.max(np.linalg.norm(v[:, :2], axis=1))) if len(v) else 0.0
+    local = R.T @ (np.asarray(p, dtype=float) - T[:3, 3])
+    moved = []
+    for k in range(3):
+        if k == up:
+            continue
+        lim = max(half[k] - radius, 0.0)
+        if abs(local[k]) > lim:
+            local[k] = math.copysign(lim, local[k])
+            moved.append(R[:, k].copy())
+    return T[:3, 3] + R @ local, moved
+
+
 def contacts_from_stance(stance: Stance) -> list[ContactSpec]:
     return [ContactSpec(h.limb, REGULAR, hold=h) for h in stance.holds]
 
@@ -189,15 +209,21 @@ class _ContactRows:
             else:
                 heading = T_ws[:3, 0] - T_ws[:3, 0] @ np.array([0, 0, 1.0]) * np.array([0, 0, 1.0])
                 yaw = math.atan2(heading[1], heading[0])
+                clamped: list[np.ndarray] = []
                 if sf.shape == "box":
+                    p_on, clamped = _onto_top_face(sf, rs, T_ws[:3, 3])
                     T_t, kind = holds_mod.surface_target_pose(self.robot, self.env, c.limb, c.surface, 0.0,
-                                                              position=T_ws[:3, 3], yaw=yaw, params=self.hold_params,
+                                                              position=p_on, yaw=yaw, params=self.hold_params,
                                                               robot_surface=rs.name)
                 else:
                     T_t, kind = holds_mod.surface_target_pose(self.robot, self.env, c.limb, c.surface,
                                                               position=T_ws[:3, 3], yaw=yaw, params=self.hold_params,
                                                               robot_surface=rs.name)
-                free_pos = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # in-plane (surface frame x, y)
+                # in-plane position free, except along the face axes where the polygon would leave the face
+                free_pos = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # surface frame x, y
+                if clamped:
+                    u = T_t[:3, :3].T @ np.array(clamped).T  # clamped face axes in the target surface frame
+                    free_pos = np.cross(u[:, 0], [0.0, 0.0, 1.0])[None, :] if len(clamped) == 1 else None
                 free_rot = np.array([[0.0, 0.0, 1.0]])  # heading about the normal
             task = core_ik.ContactTask(c.limb, fid, pin.SE3(np.asarray(rs.T_frame_surface)), pin.SE3(T_t),
                                  _rows_for_free(free_pos, free_rot))
