@@ -24,6 +24,7 @@ remove / add rows by limb kind), ``com_to_foot`` / ``com_to_centre`` without (it
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import Sequence
 
 import numpy as np
@@ -94,7 +95,7 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
     k = p.carry_waypoints
     carry = [start + (i / k) * (front - start) for i in range(1, k + 1)]
     points = ([lift] if lift is not None else []) + carry + [approach]
-    rots = []
+    poses = []
     d_rot = pin.log3(T_s[:3, :3].T @ T_e[:3, :3])
     poly = [p_s] + points + [p_e]
     length = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(np.array(poly), axis=0), axis=1))])
@@ -109,8 +110,8 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
         R = T_s[:3, :3] @ pin.exp3(w * d_rot)
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R, point
-        rots.append(T)
-    return rots, s
+        poses.append(T)
+    return poses, s
 
 
 def lift_height(ctx: A.AdaptContext, path: Sequence[np.ndarray], limb: str, old: Hold, q_s: np.ndarray) -> float:
@@ -147,10 +148,11 @@ def transfer_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, hold: Hol
     q_s, q_e = np.asarray(state.q, dtype=float), proj.q
     zone = [old, hold]
     cues, fractions = limb_cues(ctx, limb, old, hold, q_s, q_e)
+    com_s, com_e = _com_xy(ctx, q_s), _com_xy(ctx, q_e)
     milestones = [q_s]
     for cue, s in zip(cues, fractions):
         q_bar = _seed(ctx, pin.interpolate(ctx.robot.model, q_s, q_e, float(s)), attempt, rng)
-        q_w = waypoint(ctx, milestones[-1], q_bar, sigma_t, limb, zone, cue, rng)
+        q_w = waypoint(ctx, milestones[-1], q_bar, sigma_t, limb, zone, cue, rng, (1.0 - s) * com_s + s * com_e)
         if q_w is None:
             res = ctx.check(q_bar, sigma_t, A.zone_exclusions(ctx, q_bar, limb, zone))
             return AttemptFailure(A.failure_name(res) or f"reach:{limb}", f"{name}: way-point at s = {s:.2f}")
@@ -166,18 +168,29 @@ def transfer_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, hold: Hol
     return Step(A.ClimbState(q_e, sigma_e), A.Segment(name, transition, hold, attempt))
 
 
+def _com_xy(ctx: A.AdaptContext, q: np.ndarray) -> np.ndarray:
+    return np.asarray(pin.centerOfMass(ctx.robot.model, ctx.robot.model.createData(), q))[:2].copy()
+
+
 def waypoint(ctx: A.AdaptContext, q_seed: np.ndarray, q_bar: np.ndarray, stance: Stance, limb: str,
-             zone: Sequence[Hold | None], cue: np.ndarray, rng: np.random.Generator) -> np.ndarray | None:
+             zone: Sequence[Hold | None], cue: np.ndarray, rng: np.random.Generator,
+             com_target: np.ndarray | None = None) -> np.ndarray | None:
     """A whole-body way-point: the physics-constrained IK from ``q_seed`` (the previous way-point:
     the limb travels on from where it is) with ``stance``'s holds regular and ``cue`` (4x4) a soft
-    pose of ``limb``, posture pulled toward ``q_bar``; polished onto the stance and checked. A
+    pose of ``limb``, posture pulled toward ``q_bar`` and the CoM toward ``com_target`` (x, y [m]:
+    the transfer keeps the CoM between where its end configurations have it, away from the edge of
+    the support a bare equilibrium check allows); polished onto the stance and checked. A
     result that fails the check is retracted from there without the cue (the limb stays near it),
     then, failing that, from ``q_bar``. None when nothing passes the check."""
     contacts = pcik.contacts_from_stance(stance) + [pcik.ContactSpec(limb, pcik.ZERO_FORCE, pose=cue, soft=True)]
     ctx.stats.pcik_calls += 1
-    pr = pcik.solve(ctx.robot, ctx.env, q_seed, contacts, q_target=q_bar, params=ctx.settings.pcik,
+    params = ctx.settings.pcik
+    if com_target is not None:
+        params = dataclasses.replace(params, com_weight=ctx.settings.contact_path.com_weight)
+    pr = pcik.solve(ctx.robot, ctx.env, q_seed, contacts, q_target=q_bar, params=params,
                     feasibility_cfg=ctx.check_cfg, extra_exclusions=A.zone_exclusions(ctx, q_seed, limb, zone),
-                    self_margin=ctx.settings.planning.self_collision_margin, final_check=False)
+                    self_margin=ctx.settings.planning.self_collision_margin, final_check=False,
+                    com_target=com_target)
     if not [v for v in pr.violated if v != f"reach:{limb}"]:  # the kept holds are made
         q_c = A.ContactProjector(ctx, stance, pr.q)(pr.q)
         if q_c is not None:

@@ -235,6 +235,8 @@ class ContactPathParams:
         "carry way-points: held this far in front of the target (horizontally toward where the limb comes from)"))
     carry_waypoints: int = param(2, unit="-", min=1, max=8, description=(
         "way-points between the lift-off and the approach point"))
+    com_weight: float = param(10000.0, unit="1/m^2", min=0.0, description=(
+        "way-point IK: cost of the CoM's horizontal distance to its target (between the end configurations' CoMs)"))
 
 
 @dataclass(frozen=True)
