@@ -96,14 +96,20 @@ def contact_surface(robot: Any, env: Any, c: ContactSpec) -> Any:
     return holds_mod.limb_surface(robot, c.limb)
 
 
+#: [m] a floating polygon's centre is kept this far inside (its circumradius + this) a box's top
+#: face edges: the in-plane rows are free inside, so the last steps may overshoot the limit a little
+FACE_EDGE_MARGIN = 0.01
+
+
 def _onto_top_face(sf: Any, rs: Any, p: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
     """``p`` moved into the top face of box ``sf`` so that the robot polygon ``rs`` (a sole or a
-    palm, its circumradius) stays on the face, and the face axes (world) along which it was moved."""
+    palm, its circumradius + FACE_EDGE_MARGIN) stays on the face, and the face axes (world) along
+    which it was moved."""
     T = np.asarray(sf.T_world_surface)
     R, half = T[:3, :3], np.asarray(sf.half_extents, dtype=float)
     up = int(np.argmax(np.abs(R[2, :])))
     v = holds_mod.sole_vertices_in_surface(rs)
-    radius = float(np.max(np.linalg.norm(v[:, :2], axis=1))) if len(v) else 0.0
+    radius = (float(np.max(np.linalg.norm(v[:, :2], axis=1))) if len(v) else 0.0) + FACE_EDGE_MARGIN
     local = R.T @ (np.asarray(p, dtype=float) - T[:3, 3])
     moved = []
     for k in range(3):

@@ -1,0 +1,178 @@
+"""Unilateral palm contacts (issue 17): G1's palm surfaces, a palm pushing on narrow_passage's
+palm block through the physics-constrained IK and the core feasibility check, and the rule that
+a hand grasps only bilateral surfaces and cannot pull with its palm."""
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from scipy.spatial import Delaunay
+
+from climb_core import feasibility, holds
+from climb_core.contact import Hold, Stance
+from climb_core.environment import build_environment
+from climb_core.errors import SpecError
+from climb_core.robot import load_robot
+from planner_node import pcik
+from planner_node.settings import load_settings
+
+GRAVITY = 9.81
+BLOCK_TOP_Z = 0.80  # narrow_passage.yaml: palm_block top (floor 0.12 + 0.68)
+BLOCK_X, BLOCK_Y = (2.0, 3.4), (-0.40, -0.20)  # its top face's extent [m]
+
+
+@pytest.fixture(scope="module")
+def passage():
+    return build_environment("narrow_passage")
+
+
+def _palm_hull_in_frame(robot, side: str) -> np.ndarray:
+    """Vertices (n, 3) of the palm link's collision hull (coal Convex) in the palm link frame."""
+    frame = robot.model.frames[robot.frame_id(f"{side}_hand_palm_link")]
+    for g in robot.collision_model.geometryObjects:
+        if g.name == f"{side}_hand_palm_link_0":
+            pts = np.array([g.geometry.points(i) for i in range(g.geometry.num_points)])
+            M = frame.placement.inverse() * g.placement  # geometry placement is in the parent joint frame
+            return pts @ M.rotation.T + M.translation
+    raise AssertionError(f"no hull for {side}_hand_palm_link")
+
+
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_g1_palm_lies_on_the_palm_face(g1, side):
+    limb = g1.config.limbs[f"{side}_hand"]
+    palm, grasp = limb.surfaces[f"{side}_palm"], limb.surface
+    assert grasp.kind == "grasp" and palm.kind == "palm" and palm.frame == f"{side}_hand_palm_link"
+    assert list(limb.surfaces) == [f"{side}_grasp", f"{side}_palm"]
+    n, c = palm.normal, palm.centre
+    assert np.allclose(n, grasp.normal)  # out of the palm, the side the fingers close toward
+    hull = _palm_hull_in_frame(g1, side)
+    height = (hull - c) @ n  # signed height of every hull vertex above the polygon's plane
+    assert height.max() <= 1e-4  # the whole hull is on the robot side of the plane ...
+    assert height.max() >= -1e-4  # ... and the plane touches it
+    assert float((hull.mean(axis=0) - c) @ n) < -0.01  # the normal points away from the hand
+    # every corner lies on the hull's face: inside the outline of its vertices within 2 mm of the plane
+    corners = palm.vertices
+    assert np.allclose((corners - c) @ n, 0.0, atol=1e-9)
+    face = hull[height > height.max() - 2e-3]
+    e1 = palm.T_frame_surface[:3, 0]
+    e2 = np.cross(n, e1)
+    outline = Delaunay(np.column_stack([(face - c) @ e1, (face - c) @ e2]))
+    assert (outline.find_simplex(np.column_stack([(corners - c) @ e1, (corners - c) @ e2])) >= 0).all()
+    area = np.linalg.norm(np.cross(corners[1] - corners[0], corners[3] - corners[0]))
+    assert 1e-3 < area < 6e-3  # [m^2] palm-sized (Dex3 palm link 0.087 x 0.088 m)
+
+
+def test_rule_grasp_on_bilateral_palm_elsewhere(g1, env, passage):
+    block, rung = passage.surfaces["palm_block"], env.surfaces["rung_3"]
+    assert holds.hand_surface_for(g1, "right_hand", block).name == "right_palm"
+    assert holds.hand_surface_for(g1, "right_hand", rung).name == "right_grasp"
+    assert holds.robot_surface_for(g1, "left_foot", block).name == "left_sole"
+    with pytest.raises(SpecError) as err:  # talos has no palm: it cannot push on the block
+        holds.hand_surface_for(load_robot("talos"), "right_hand", block)
+    assert err.value.field == "hold.robot_surface" and "not bilateral" in str(err.value)
+    assert holds.hand_surface_for(load_robot("talos"), "right_hand", block, required=False) is None
+
+
+def test_a_grasp_on_the_block_is_refused(g1, passage):
+    with pytest.raises(SpecError) as err:
+        holds.make_hold(g1, passage, "right_hand", "palm_block", position=np.array([2.3, -0.3, 0.8]), yaw=0.0,
+                        robot_surface="right_grasp")
+    assert err.value.field == "hold.env_surface" and "not bilateral" in str(err.value)
+    spec = pcik.ContactSpec("right_hand", pcik.FLOATING, surface="palm_block", robot_surface="right_grasp")
+    with pytest.raises(SpecError, match="not bilateral"):
+        pcik.solve(g1, passage, _seed(g1), [spec], physics=False, collision=False)
+    with pytest.raises(SpecError) as err:
+        holds.make_hold(g1, passage, "right_hand", "palm_block", robot_surface="right_elbow")
+    assert err.value.field == "hold.robot_surface"
+
+
+def _seed(robot) -> np.ndarray:
+    q = robot.q_reference()
+    q[0], q[2] = 2.15, q[2] + 0.12  # standing on the floor before the step
+    return q
+
+
+@pytest.fixture(scope="module")
+def palm_push(g1, passage):
+    """Left foot on the floor, right foot lifted 2 cm over the step (zero force), right palm
+    floating on the block; the CoM target between the foot and the block loads the palm."""
+    hp = feasibility.load_config().holds
+    left = holds.make_hold(g1, passage, "left_foot", "floor", position=np.array([2.2, 0.15, 0.12]), yaw=0.0,
+                           params=hp)
+    right = holds.make_hold(g1, passage, "right_foot", "step", position=np.array([2.5, -0.10, 0.45]), yaw=0.0,
+                            params=hp)
+    T_right = holds.hold_target(g1, passage, right, params=hp).T_world_surface.copy()
+    T_right[2, 3] += 0.02
+    contacts = [pcik.ContactSpec("left_foot", pcik.REGULAR, hold=left),
+                pcik.ContactSpec("right_foot", pcik.ZERO_FORCE, pose=T_right),
+                pcik.ContactSpec("right_hand", pcik.FLOATING, surface="palm_block",
+                                 preferred_position=np.array([2.25, -0.27, BLOCK_TOP_Z]))]
+    res = pcik.solve(g1, passage, _seed(g1), contacts, params=load_settings().pcik, com_target=np.array([2.2, 0.0]))
+    assert res.success, pcik.describe_failure(res)
+    return res, left
+
+
+def _palm_forces(check: feasibility.FeasibilityResult, hold: Hold) -> tuple[np.ndarray, np.ndarray]:
+    """(normal, tangential) force magnitude per palm point [N]."""
+    f = check.contact_forces[hold.limb]
+    fn = np.einsum("ij,ij->i", f, hold.normals)
+    return fn, np.linalg.norm(f - fn[:, None] * hold.normals, axis=1)
+
+
+def test_palm_pushes_on_the_block_with_a_tenth_of_the_weight(g1, passage, palm_push):
+    res, left = palm_push
+    palm = res.holds["right_hand"]
+    assert (palm.robot_surface, palm.env_surface, palm.bilateral, len(palm.points)) == \
+        ("right_palm", "palm_block", False, 4)
+    # forward kinematics: the palm polygon lies on the block's top face, its normal into the block
+    data = g1.model.createData()
+    pin.framesForwardKinematics(g1.model, data, res.q)
+    rs = g1.config.limbs["right_hand"].surfaces["right_palm"]
+    T_frame = data.oMf[g1.frame_id(rs.frame)].homogeneous
+    corners = rs.vertices @ T_frame[:3, :3].T + T_frame[:3, 3]
+    assert np.abs(corners[:, 2] - BLOCK_TOP_Z).max() < 2e-3
+    assert (corners[:, 0] > BLOCK_X[0]).all() and (corners[:, 0] < BLOCK_X[1]).all()
+    assert (corners[:, 1] > BLOCK_Y[0]).all() and (corners[:, 1] < BLOCK_Y[1]).all()
+    assert (T_frame @ rs.T_frame_surface)[2, 2] < -np.cos(np.radians(3.0))  # palm normal points down
+    sole = g1.T_world_surface("right_foot", res.q)[2, 3]
+    assert 0.01 < sole - 0.45 < 0.03  # the right foot is over the step, unloaded
+    # the frozen core check on the stance left foot + right palm, collisions included
+    check = feasibility.check(g1, passage, res.q, Stance((left, palm)))
+    assert check.feasible, check.summary()
+    weight = pin.computeTotalMass(g1.model) * GRAVITY
+    fn, ft = _palm_forces(check, palm)
+    assert fn.sum() >= 0.10 * weight, f"palm carries {fn.sum():.1f} N of {weight:.1f} N"
+    assert (fn >= -1e-6).all() and (ft <= palm.friction * fn + 1e-6).all()  # pushes, inside its cone
+    total = sum(f.sum(axis=0) for f in check.contact_forces.values())
+    assert abs(total[2] - weight) < 1e-3 * weight
+
+
+def test_a_palm_cannot_pull(g1, passage, palm_push):
+    res, left = palm_push
+    palm = res.holds["right_hand"]
+    stance = Stance((left, palm))
+    pelvis = g1.model.frames[g1.frame_id("pelvis")]
+    data = g1.model.createData()
+    pin.framesForwardKinematics(g1.model, data, res.q)
+    base = data.oMf[g1.frame_id(pelvis.name)].translation
+    load = np.array([0.0, 0.0, -100.0])  # [N] a 10 kg mass rigidly carried 0.4 m beside the pelvis
+
+    def with_load(side: float) -> feasibility.FeasibilityResult:
+        point = base + np.array([0.0, side * 0.4, 0.0])
+        return feasibility.check_equilibrium(g1, res.q, stance, env=passage,
+                                             external_forces=[(pelvis.name, point, load)])
+
+    # on the block's side the palm pushes harder ...
+    unloaded = feasibility.check_equilibrium(g1, res.q, stance, env=passage)
+    toward = with_load(-1.0)
+    assert toward.feasible, toward.summary()
+    assert _palm_forces(toward, palm)[0].sum() > _palm_forces(unloaded, palm)[0].sum() + 10.0
+    # ... on the far side, beyond the left sole, only a pull on the palm would hold the robot
+    away = with_load(+1.0)
+    assert not away.feasible and set(away.violated) & {"equilibrium", "friction"}, away.violated
+    # and a palm hold cannot be declared bilateral
+    pulling = Hold(palm.limb, palm.robot_surface, palm.env_surface, palm.points, palm.friction, bilateral=True,
+                   grip_force_limit=200.0)
+    with pytest.raises(SpecError) as err:
+        feasibility.check_equilibrium(g1, res.q, Stance((left, pulling)), env=passage)
+    assert err.value.field == "stance.right_hand.bilateral"
