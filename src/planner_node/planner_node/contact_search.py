@@ -21,10 +21,10 @@ other:
 - a node reaches an intermediate milestone when its base (position and rotation) is within
   ``milestone_tolerance`` of the milestone's, or is as close to the next milestone's base as this
   milestone's is (the guide path plans the free-flyer, where the limbs go is the search's), the
-  last one when its whole configuration distance is within
-  ``goal_tolerance``; the next milestone is searched from that node; after the last one the stance sequence and the
-  transition configurations are read back up the tree (:class:`~climb_core.contact.ContactPlan`:
-  consecutive stances differ by exactly one hold).
+  last one when its base and every limb the milestone puts on a surface are within
+  ``goal_tolerance``; the next milestone is searched from that node; after the last one the
+  stance sequence and the transition configurations are read back up the tree
+  (:class:`~climb_core.contact.ContactPlan`: consecutive stances differ by exactly one hold).
 
 Configuration distance (:func:`configuration_distance`), in metres:
 
@@ -79,13 +79,17 @@ def limb_type(limb: str) -> str:
 
 def accepting_surfaces(robot: Any, env: Any, limb: str) -> list[Any]:
     """The environment surfaces ``limb`` may be placed on (``Environment.contact_surfaces``), in
-    the environment's order, that its robot surface can make a hold with: a grasp closes only
-    around a bilateral cylinder (a rung, a rail: a bilateral contact, grip limit instead of a
-    friction cone, as :func:`climb_core.holds.make_hold` builds it); a sole or palm rests on a
-    plane, a box top or a cylinder's top line."""
-    kind = holds_mod.limb_surface(robot, limb).kind
-    return [sf for sf in env.contact_surfaces(limb_type(limb))
-            if kind != "grasp" or (sf.bilateral and sf.shape == "cylinder")]
+    the environment's order, that it has a robot surface for (:func:`climb_core.holds.robot_surface_for`:
+    a foot its sole; a hand closes its grasp around a bilateral surface - a bilateral contact, a
+    grip limit instead of a friction cone - and pushes with its palm on any other). A grasp needs a
+    cylinder."""
+    out = []
+    for sf in env.contact_surfaces(limb_type(limb)):
+        rs = holds_mod.robot_surface_for(robot, limb, sf, required=False)
+        if rs is None or (rs.kind == "grasp" and sf.shape != "cylinder"):
+            continue
+        out.append(sf)
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -198,6 +202,7 @@ class Node:
     depth: int = 0
     distance: float = math.inf  # [m] configuration distance to the milestone it was pushed for
     base_distance: float = math.inf  # [m] its free-flyer term (base position and rotation)
+    limb_distances: dict[str, float] = field(default_factory=dict)  # [m] limb -> distance to its milestone place
 
 
 @dataclass
@@ -306,6 +311,7 @@ class _Search:
             if k == 0:
                 node.distance = base + joints + self.params.limb_weight * sum(per_limb.values())
                 node.base_distance = base
+                node.limb_distances = per_limb
             cost = base + joints + self.params.limb_weight * sum(
                 d if j in held else t.floor.get(j, 0.0) for j, d in per_limb.items())
             cost += self.params.free_limb_cost * sum(1 for j in per_limb if j not in held)
@@ -365,11 +371,15 @@ class _Search:
 
     def _reached(self, node: Node, target: _Target, after: _Target | None) -> bool:
         """A guide-path milestone places the free-flyer (base), the search places the limbs: the
-        last milestone is reached by the whole configuration; an intermediate one by the base, or
-        passed: the base is as close to the next milestone's as this milestone's is (a guide path's
-        in-between milestone need not be a configuration any contact set can hold)."""
+        last milestone is reached by the base and by every limb the milestone puts on a surface
+        (its place within ``goal_tolerance`` of one; a limb in the air there is free); an
+        intermediate one by the base, or passed: the base is as close to the next milestone's as
+        this milestone's is (a guide path's in-between milestone need not be a configuration any
+        contact set can hold)."""
         if after is None:
-            return node.distance <= self.params.goal_tolerance
+            tol = self.params.goal_tolerance
+            return node.base_distance <= tol and all(
+                node.limb_distances[j] <= tol for j, floor in target.floor.items() if floor <= tol)
         if node.base_distance <= self.params.milestone_tolerance:
             return True
         base_next, _, _ = distance_terms(node.q, {}, _Target(after.q, {}), self.params)

@@ -158,7 +158,7 @@ class ContactSearchParams:
     lookahead: bool = param(True, unit="-", description=(
         "a node's cost is the smaller of its costs to the targeted milestone and to the next one"))
     goal_tolerance: float = param(0.1, unit="m", min=0.0, description=(
-        "a node within this configuration distance of the last milestone reaches it"))
+        "the last milestone is reached by a node whose base and limbs on surfaces are this close to its"))
     base_rotation_weight: float = param(0.3, unit="m/rad", min=0.0, description=(
         "configuration distance: base rotation angle counted in metres"))
     limb_weight: float = param(1.0, unit="-", min=0.0, description=(
