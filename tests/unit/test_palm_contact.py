@@ -176,3 +176,51 @@ def test_a_palm_cannot_pull(g1, passage, palm_push):
     with pytest.raises(SpecError) as err:
         feasibility.check_equilibrium(g1, res.q, Stance((left, pulling)), env=passage)
     assert err.value.field == "stance.right_hand.bilateral"
+
+
+def _g1_data() -> dict:
+    import yaml
+
+    from climb_core.robot_config import resolve_config_path
+
+    return yaml.safe_load(resolve_config_path("g1").read_text())
+
+
+@pytest.mark.parametrize("change, field, rule", [
+    (lambda e: e.update(kind="sole"), "limbs.left_hand.extra_surfaces[0].kind", "grasp or a palm"),
+    (lambda e: e.update(kind="grasp"), "limbs.left_hand.extra_surfaces[0].vertices", "unknown key"),
+    (lambda e: e.update(name="left_grasp"), "limbs.left_hand.extra_surfaces[0].name", "already a surface"),
+    (lambda e: e.pop("normal"), "limbs.left_hand.extra_surfaces[0].normal", "missing"),
+    (lambda e: e["vertices"][0].__setitem__(1, -0.03), "limbs.left_hand.extra_surfaces[0].vertices", "one plane"),
+    (lambda e: e["vertices"].reverse(), "limbs.left_hand.extra_surfaces[0].vertices", "counter-clockwise"),
+    (lambda e: e.update(normal=[0.0, 0.0, 0.0]), "limbs.left_hand.extra_surfaces[0].normal", "non-zero"),
+])
+def test_extra_surfaces_are_validated(change, field, rule):
+    from climb_core.robot_config import parse_robot_config
+
+    data = _g1_data()
+    change(data["limbs"]["left_hand"]["extra_surfaces"][0])
+    with pytest.raises(SpecError) as err:
+        parse_robot_config(data)
+    assert err.value.field == field and rule in err.value.rule
+
+
+def test_one_surface_per_kind_and_limb_and_feet_only_soles():
+    from climb_core.robot_config import parse_robot_config
+
+    data = _g1_data()
+    extra = data["limbs"]["left_hand"]["extra_surfaces"]
+    extra.append(dict(extra[0], name="left_palm_2"))
+    with pytest.raises(SpecError) as err:
+        parse_robot_config(data)
+    assert err.value.field == "limbs.left_hand.extra_surfaces[1].kind" and "one surface per kind" in err.value.rule
+    data = _g1_data()
+    data["limbs"]["left_foot"]["extra_surfaces"] = [dict(data["limbs"]["left_hand"]["extra_surfaces"][0])]
+    with pytest.raises(SpecError) as err:
+        parse_robot_config(data)
+    assert err.value.field == "limbs.left_foot.extra_surfaces[0].kind" and "sole" in err.value.rule
+    data = _g1_data()
+    data["limbs"]["left_hand"]["extra_surfaces"] = {"name": "x"}
+    with pytest.raises(SpecError) as err:
+        parse_robot_config(data)
+    assert err.value.field == "limbs.left_hand.extra_surfaces"
