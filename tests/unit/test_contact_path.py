@@ -16,6 +16,7 @@ from planner_node.adapt import AdaptContext, ContactProjector, zone_exclusions
 from planner_node.climb_planner import contact_plan_steps, plan_from_contact_plan
 from planner_node.pcik import check_with_exclusions
 from planner_node.pipeline import PlanRequest, contact_search, guide_path, load_problem
+from planner_node import settings as settings_mod
 from planner_node.settings import load_settings
 
 
@@ -125,7 +126,7 @@ def test_each_transition_ends_feasible_and_a_moving_limb_is_lifted(problem, gene
     assert lifted >= 4  # both feet off the ground onto rung 1, both hands from rung to rung
 
 
-def test_a_released_limb_is_a_com_shift_then_its_placement(problem):
+def test_a_released_limb_is_a_com_shift_then_its_placement(problem, tmp_path):
     pb, cp = problem
     library = contact_path.empty_library(pb.robot)
     # the search's form of a step: remove the left foot, then add it on its new hold
@@ -136,8 +137,11 @@ def test_a_released_limb_is_a_com_shift_then_its_placement(problem):
     steps = contact_plan_steps(library, split)
     assert [(s.kind, s.limb, s.unload) for s in steps] == [("release", "left_foot", ("left_foot",)),
                                                            ("limb", "left_foot", ())]
-    res = plan_from_contact_plan(pb.robot, pb.env, split, library=library, settings=pb.settings, seed=0)
+    # no library on disk (an empty primitives directory): the planner falls back to generic paths
+    no_library = settings_mod.replace(pb.settings, "planning", primitives_dir=str(tmp_path))
+    res = plan_from_contact_plan(pb.robot, pb.env, split, settings=no_library, seed=0)
     assert res.success, f"{res.failure_constraint}: {res.failure_detail}"
+    assert res.subtasks == ["release_left_foot_0", "generic_left_foot_1"]
     shift, place = res.plan.transitions
     # the CoM shift keeps the foot held (the FSM releases it when the placement starts) ...
     assert shift.moving_limb == "" and shift.primitive == "com_to_foot"
