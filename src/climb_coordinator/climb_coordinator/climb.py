@@ -3,7 +3,9 @@
     result = run_climb(ClimbRequest(ladder="default", robot="g1", rungs=2, mode="qp", out_dir="out/x"))
     print(result.summary)  # the JSON summary of shared/specs/ladder_spec.md ("Results")
 
-1. Plan: ``planner_node.climb_planner.plan_climb`` from the library's start fixture (standing).
+1. Plan: ``planner_node.climb_planner.plan_climb`` from the library's start fixture (standing), or,
+   with ``strategy="search"``, the DARPA-tasks paper's pipeline (free-flyer guide path, best-first
+   contact search, adaptation: :class:`SearchPlanSource`) from ``start_posture``.
 2. Post-process: plan joints clipped ``plan.joint_limit_margin`` inside the URDF limits (the
    planner keeps a smaller margin than the controller's joint-limit bounds; a configuration inside
    the controller's margin band can make the QP infeasible next to a collision damper).
@@ -45,7 +47,7 @@ from .settings import ClimbSettings, apply_planner_overrides, load_climb_setting
 
 __all__ = ["MODES", "ClimbRequest", "ClimbResult", "base_summary", "validate", "check_request", "plan_duration",
            "run_climb", "execute", "clip_plan_to_limits", "snapshot", "LibraryPlanSource", "InProcessExecutor",
-           "BackendJudge", "STOP_STATES"]
+           "BackendJudge", "SearchPlanSource", "STOP_STATES"]
 
 
 @dataclass
@@ -125,6 +127,60 @@ class LibraryPlanSource:
                            else res.plan, res.plan_time_s, res.n_stances,
                            "" if ok else f"{res.failure_constraint}: {res.failure_detail}", dict(res.stats),
                            start_projection_mm=projection)
+
+
+class SearchPlanSource:
+    """Plan source port for ``strategy: search`` (planner_node.pipeline): the free-flyer guide path,
+    the best-first contact search and the adaptation, in this process, from the start fixture (or,
+    replanning, from the measured state projected onto the held stance)."""
+
+    def __init__(self, req: ClimbRequest, robot, env, psettings, cs: ClimbSettings, start_posture: str):
+        self.req, self.robot, self.env, self.psettings, self.cs = req, robot, env, psettings, cs
+        self.start_posture = start_posture
+
+    def plan(self, steps: int, start=None) -> PlanOutcome:
+        from climb_core import fixtures
+        from climb_core.errors import ClimbError
+        from planner_node import pipeline
+        from planner_node.plan_io import stance_to_dict
+
+        from .session import _stance_feet_rung
+
+        t0 = time.perf_counter()
+        if start is None:  # the first plan: the feet end on rung ``steps`` (= the request's rungs)
+            stance, q = fixtures.get(self.start_posture, self.robot, self.env)
+            target = int(steps)
+        else:  # a replan: ``steps`` more rungs above the held stance's feet
+            q, stance = start
+            target = _stance_feet_rung(stance) + int(steps)
+        request = pipeline.PlanRequest(id="in-process", robot=self.robot.config.name, scenario=self.env.name,
+                                       rungs=target, seed=self.req.seed, timeout_s=self.req.plan_timeout_s,
+                                       strategy="search",
+                                       start={"q": np.asarray(q, float).tolist(), "stance": stance_to_dict(stance)})
+        problem = pipeline.Problem(request, self.robot, self.env.scenario, self.env, None, self.psettings,
+                                   start=(np.asarray(q, float), stance))
+        stages: dict[str, float] = {}
+        try:
+            t = time.perf_counter()
+            path = pipeline.guide_path(problem, strategy="search").product
+            stages["guide_path"] = time.perf_counter() - t
+            t = time.perf_counter()
+            contact_plan = pipeline.contact_search(problem, path, strategy="search").product
+            stages["contact_search"] = time.perf_counter() - t
+            t = time.perf_counter()
+            res, _ = pipeline.adapt(problem, contact_plan, strategy="search")
+            stages["adaptation"] = time.perf_counter() - t
+        except ClimbError as exc:  # InfeasibleError / SpecError of a stage: the plan failed, said why
+            return PlanOutcome(False, None, time.perf_counter() - t0, failure=str(exc), stages_s=stages)
+        ok = bool(res.success and res.plan is not None)
+        plan = clip_plan_to_limits(res.plan, self.robot, self.cs.plan_joint_limit_margin) if ok else res.plan
+        projection = None
+        if start is not None and problem.start is not None:
+            q0, _ = pipeline.start_state(problem)
+            projection = float(np.linalg.norm(q0[:3] - np.asarray(q)[:3])) * 1e3
+        return PlanOutcome(ok, plan, time.perf_counter() - t0, len(contact_plan.stances),
+                           "" if ok else f"{res.failure_constraint}: {res.failure_detail}", dict(res.stats),
+                           stages_s=stages, start_projection_mm=projection)
 
 
 class BackendJudge:
@@ -297,9 +353,14 @@ def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
     robot = load_robot(req.robot)
     psettings = apply_planner_overrides(load_settings(), cs.planner_overrides)
     p = psettings.planning
+    if req.strategy == "search":
+        posture = req.start_posture or "standing"
+        plans = SearchPlanSource(req, robot, env, psettings, cs, posture)
+        return execute(req, plans, cs, scenario, posture, on_progress or (lambda m: None))
     library = load_library(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
     plans = LibraryPlanSource(req, robot, env, library, psettings, cs)
-    return execute(req, plans, cs, scenario, library.initial_fixture, on_progress or (lambda m: None))
+    return execute(req, plans, cs, scenario, req.start_posture or library.initial_fixture,
+                   on_progress or (lambda m: None))
 
 
 def execute(req: ClimbRequest, plans, cs: ClimbSettings, scenario, initial_fixture: str,

@@ -34,6 +34,10 @@ MODES = ("qp", "compliance")
 STOP_STATES = ("hold", "failure", "replan_needed")
 #: replan attempts after ``replan_needed`` (a guarded search that found no contact) per climb
 MAX_FORCED_REPLANS = 2
+#: planning strategies of a climb (planner_node.pipeline.STRATEGIES)
+STRATEGIES = ("primitives", "search")
+#: stance fixtures a climb may start in (climb_core.fixtures)
+START_POSTURES = ("standing", "ladder_4_contacts")
 
 
 @dataclass
@@ -56,6 +60,12 @@ class ClimbRequest:
     #: (actuation_latency_s), unless controller_overrides set it
     command_delay_ticks: int = 0
     max_forced_replans: int = MAX_FORCED_REPLANS
+    #: primitives (the ladder paper: the library's primitive sequence adapted) | search (the
+    #: DARPA-tasks paper: free-flyer guide path, best-first contact search, then the adaptation)
+    strategy: str = "primitives"
+    #: the stance fixture the robot starts in (climb_core.fixtures: standing, ladder_4_contacts, ...);
+    #: "" = the primitive library's start fixture (strategy primitives) or standing (search)
+    start_posture: str = ""
 
 
 def ladder_name(ladder: Any) -> str:
@@ -87,6 +97,13 @@ def validate(req: ClimbRequest) -> None:
             raise SpecError("plan_cycles", "replanning during a climb and back down is not supported: use one")
     if isinstance(req.command_delay_ticks, bool) or req.command_delay_ticks not in (0, 1):
         raise SpecError("command_delay_ticks", f"must be 0 or 1, got {req.command_delay_ticks!r}")
+    if req.strategy not in STRATEGIES:
+        raise SpecError("strategy", f"must be one of {', '.join(STRATEGIES)}, got {req.strategy!r}")
+    if req.start_posture and req.start_posture not in START_POSTURES:
+        raise SpecError("start_posture", f"must be empty or one of {', '.join(START_POSTURES)}, "
+                                         f"got {req.start_posture!r}")
+    if req.strategy == "search" and (req.descend or req.plan_cycles is not None):
+        raise SpecError("strategy", "a searched climb is planned in one piece and upward: no descend, no plan_cycles")
 
 
 @functools.lru_cache(maxsize=8)
