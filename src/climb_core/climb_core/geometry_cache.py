@@ -28,8 +28,8 @@ from climb_core.ros_env import project_root
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import pinocchio as pin
 
-__all__ = ["cache_dir", "atomic_write", "obj_text", "config_key", "write_mesh", "apply_collision_geometry",
-           "CollisionUrdfCache"]
+__all__ = ["cache_dir", "atomic_write", "obj_text", "config_key", "write_mesh", "stamped_urdf",
+           "apply_collision_geometry", "CollisionUrdfCache"]
 
 #: Bump when the collision URDF written here changes (invalidates the on-disk cache).
 _GENERATOR = "climb_core.geometry_cache collision URDF v1"
@@ -97,6 +97,20 @@ def write_mesh(config: RobotConfig, text: str, stem: str, directory: pathlib.Pat
     return path
 
 
+def stamped_urdf(path: pathlib.Path, stamp: str) -> pathlib.Path | None:
+    """``path`` when it is a URDF written with ``stamp`` on its second line whose every mesh file
+    exists (an up-to-date cache entry), else None."""
+    if not path.is_file():
+        return None
+    lines = path.read_text().split("\n", 2)
+    if len(lines) < 2 or lines[1].strip() != stamp:
+        return None
+    for mesh in ET.fromstring(lines[2] if len(lines) > 2 else "<robot/>").iter("mesh"):
+        if not pathlib.Path(mesh.get("filename", "")).is_file():
+            return None
+    return path
+
+
 def apply_collision_geometry(root: ET.Element, config: RobotConfig, geom: "pin.GeometryModel",
                              mesh_writer: Callable[[str, str], pathlib.Path]) -> None:
     """In a parsed URDF: each collision mesh becomes its hull in ``geom`` (object ``<link>_<k>``,
@@ -138,15 +152,7 @@ class CollisionUrdfCache:
 
     def cached(self) -> pathlib.Path | None:
         """The cached URDF if it is up to date and every mesh it names exists, else None."""
-        if not self.out.is_file():
-            return None
-        lines = self.out.read_text().split("\n", 2)
-        if len(lines) < 2 or lines[1].strip() != self.stamp:
-            return None
-        for mesh in ET.fromstring(lines[2] if len(lines) > 2 else "<robot/>").iter("mesh"):
-            if not pathlib.Path(mesh.get("filename", "")).is_file():
-                return None
-        return self.out
+        return stamped_urdf(self.out, self.stamp)
 
     def write(self, geom: "pin.GeometryModel") -> pathlib.Path:
         """Write the collision URDF of ``geom`` (hulls already built); visuals are dropped."""

@@ -24,7 +24,7 @@ import numpy as np
 
 from climb_core.errors import ClimbError
 from climb_core.geometry_cache import (apply_collision_geometry, atomic_write, cache_dir, config_key, obj_text,
-                                       write_mesh)
+                                       stamped_urdf, write_mesh)
 from climb_core.robot_config import RobotConfig
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -85,15 +85,7 @@ class SimUrdfWriter:
 
     def cached(self) -> pathlib.Path | None:
         """The cached URDF if it is up to date (and every mesh it names exists), else None."""
-        if not self.out.is_file():
-            return None
-        lines = self.out.read_text().split("\n", 2)
-        if len(lines) < 2 or lines[1].strip() != self.stamp:
-            return None
-        for mesh in ET.fromstring(lines[2] if len(lines) > 2 else "<robot/>").iter("mesh"):
-            if not pathlib.Path(mesh.get("filename", "")).is_file():
-                return None
-        return self.out
+        return stamped_urdf(self.out, self.stamp)
 
     def write(self, geom: "pin.GeometryModel", expected_mass: float) -> pathlib.Path:
         text = self._generate(geom)
