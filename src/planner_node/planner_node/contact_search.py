@@ -14,7 +14,8 @@ other:
   is pushed;
 - *remove*: for every contact, the IK is called with that contact zero-force (the limb stays on its
   hold carrying nothing: the robot is in equilibrium on the others); on success the set without it
-  is pushed;
+  is pushed; sets keep more than ``min_contacts`` contacts on a ladder (the three-support gait),
+  ``min_contacts_scene`` elsewhere (1: single support, walking);
 - branching: the surfaces of a free limb beyond its reach from its root (hip / shoulder) are
   pruned before any IK call; of the others, the ``max_surfaces_per_limb`` closest to the limb's
   place at the milestone are tried (0: all of them, the paper's exhaustive expansion);
@@ -261,6 +262,8 @@ class _Search:
         self.cfg = feasibility_cfg or feasibility.load_config()
         self.kin = _Kinematics(robot)
         self.surfaces = {limb: accepting_surfaces(robot, env, limb) for limb in self.kin.frames}
+        # a ladder is climbed on three supports; elsewhere the robot also walks (single support)
+        self.min_contacts = params.min_contacts if getattr(env, "ladder", None) is not None else params.min_contacts_scene
         self.stats = SearchStats()
         self.t0 = time.perf_counter()
         self.best: tuple[float, int] = (math.inf, -1)  # closest distance to the milestone, its index
@@ -352,7 +355,7 @@ class _Search:
                     continue
                 child = Stance(stance.holds + (res.holds[limb],), name=f"add:{limb}@{sf.name}")
                 out.append((Node(child, res.q, node, f"add:{limb}@{sf.name}", node.depth + 1), (limb, preferred)))
-        if len(stance.holds) > self.params.min_contacts:  # remove each contact (zero force)
+        if len(stance.holds) > self.min_contacts:  # remove each contact (zero force)
             for h in stance.holds:
                 child = stance.without(h.limb)
                 if stance_key(child, self.params.key_resolution) in seen:
@@ -386,6 +389,30 @@ class _Search:
         span, _, _ = distance_terms(target.q, {}, _Target(after.q, {}), self.params)
         return base_next <= span
 
+    def _limbs_in_place(self, node: Node, target: _Target) -> bool:
+        """Every limb the milestone puts on a surface is in contact within ``goal_tolerance`` of it."""
+        tol = self.params.goal_tolerance
+        return all(node.stance.hold(j) is not None and node.limb_distances[j] <= tol
+                   for j, floor in target.floor.items() if floor <= tol)
+
+    def _settle(self, node: Node, target: _Target) -> Node | None:
+        """The node's stance with its configuration pulled to the milestone: the IK (every contact
+        regular) run to convergence instead of stopping at the first feasible iterate, then the
+        frozen check. The IK stops at the first configuration that passes the check, near its
+        seed: with the limbs in place, the body may still be away from the goal's."""
+        t = time.perf_counter()
+        self.stats.ik_calls += 1
+        res = pcik.solve(self.robot, self.env, node.q, node.stance, q_target=target.q, params=self.pcik_params,
+                         feasibility_cfg=self.cfg, final_check=False)
+        out = None
+        if not res.violated and feasibility.check(self.robot, self.env, res.q, node.stance, self.cfg).feasible:
+            out = Node(node.stance, res.q, node.parent, node.move, node.depth)
+            self._priority(out, target)
+        self.stats.ik_time_s += time.perf_counter() - t
+        if out is None:
+            self.stats.ik_failures += 1
+        return out
+
     def to_milestone(self, root: Node, target: _Target, index: int, after: _Target | None) -> Node:
         """Best-first search from ``root`` until a node reaches ``target`` (``after``: the next
         milestone, None for the last)."""
@@ -403,6 +430,10 @@ class _Search:
             _, _, node = heapq.heappop(queue)
             if self._reached(node, target, after):
                 return node
+            if after is None and self._limbs_in_place(node, target):
+                settled = self._settle(node, target)
+                if settled is not None and self._reached(settled, target, after):
+                    return settled
             key = stance_key(node.stance, self.params.key_resolution)
             if key in expanded:
                 self.stats.skipped_visited += 1

@@ -170,7 +170,9 @@ class ContactSearchParams:
     free_limb_cost: float = param(0.05, unit="m", min=0.0, description=(
         "node cost: a limb without a contact counts this instead of its distance to its milestone place"))
     min_contacts: int = param(3, unit="-", min=1, description=(
-        "contacts are removed only from sets with more than this (3: the quasi-static climbing gait)"))
+        "on a ladder, contacts are removed only from sets with more than this (3: the quasi-static climbing gait)"))
+    min_contacts_scene: int = param(1, unit="-", min=1, description=(
+        "in a scene without a ladder, the same bound (1: single support, the robot walks)"))
     ik_floating_weight: float = param(100.0, unit="1/m^2", min=0.0, description=(
         "the search's IK: cost of the added contact's distance to its milestone place (0: pcik.floating_weight)"))
     ik_max_iterations: int = param(20, unit="-", min=0, description=(
