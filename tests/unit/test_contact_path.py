@@ -165,3 +165,42 @@ def test_a_step_changing_two_holds_is_still_rejected(problem):
     with pytest.raises(SpecError) as err:
         contact_plan_steps(contact_path.empty_library(pb.robot), bad)
     assert err.value.field == "contact_plan.stances[1]"
+
+
+def test_a_cycle_of_the_best_first_search_becomes_a_whole_body_plan(problem):
+    """The search's own form (a hold removed, then added: stances differing by one hold) for one
+    cycle from feet on rung 1, hands on rung 5: each release a CoM shift, then the placement."""
+    from climb_core import fixtures
+    from climb_core.contact import GuidePath
+    from planner_node import contact_search
+
+    pb, _ = problem
+    robot, env = pb.robot, pb.env
+    stance0, q0 = fixtures.get("ladder_4_contacts", robot, env)
+    q1 = q0.copy()
+    q1[:3] += env.rung_centre(2) - env.rung_centre(1)
+    found = contact_search.search(robot, env, q0, stance0, GuidePath("g1", env.name, list(robot.joint_names), [q0, q1]))
+    cp = found.plan
+    assert all(abs(len(a.holds) - len(b.holds)) == 1 for a, b in zip(cp.stances[:-1], cp.stances[1:]))
+    t0 = time.perf_counter()
+    res = plan_from_contact_plan(robot, env, cp, library=contact_path.empty_library(robot), settings=pb.settings,
+                                 seed=0)
+    print(f"\nbest-first search cycle: {len(cp.stances) - 1} stance changes made whole-body in "
+          f"{time.perf_counter() - t0:.1f} s, {res.report.n_backtracks} backtracks")
+    assert res.success, f"{res.failure_constraint}: {res.failure_detail}"
+    check_plan(res.plan, robot, env)
+    frozen = feasibility.load_config()
+    for k, (t, a, b) in enumerate(zip(res.plan.transitions, cp.stances[:-1], cp.stances[1:])):
+        released = [h for h in a.holds if b.hold(h.limb) is None]
+        if released:  # a CoM shift that keeps the limb held and ends with the other holds carrying the robot
+            limb = released[0].limb
+            assert t.moving_limb == "" and t.target_stance.hold(limb) is not None
+            nxt = res.plan.transitions[k + 1]
+            assert nxt.moving_limb == limb and nxt.stance.hold(limb) is None
+            r = check_with_exclusions(robot, env, t.path[-1], nxt.stance, frozen, [(limb, released[0].env_surface)])
+            assert r.feasible, f"transition {k}: {limb} not removable: {r.violated}"
+        else:
+            assert t.moving_limb and t.target_stance.hold(t.moving_limb).env_surface == b.hold(t.moving_limb).env_surface
+        assert feasibility.check(robot, env, t.path[-1], t.target_stance, frozen).feasible, k
+    last = res.plan.transitions[-1].target_stance
+    assert [last.hold(f).env_surface for f in FEET] == ["rung_2", "rung_2"]

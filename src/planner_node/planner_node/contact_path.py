@@ -74,8 +74,14 @@ def hold_direction(ctx: A.AdaptContext, hold: Hold, q: np.ndarray) -> np.ndarray
 
 def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: np.ndarray,
               q_e: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
-    """World poses [4x4] of the moving limb's surface at the way-points (lift-off, carry, approach)
-    and each one's path fraction in (0, 1) (arc length of the cue polyline from q_s to q_e)."""
+    """World poses [4x4] of the moving limb's surface at the way-points and each one's path
+    fraction in (0, 1) (arc length of the cue polyline from q_s to q_e): the lift-off (a held
+    limb), then - when the front point is farther back than the lift-off - straight back to its
+    distance at the lift-off height (a foot clears the rung above before rising), the carry
+    toward the front point (``carry_backoff`` behind the approach point, horizontally toward
+    where the limb comes from), and the approach point on the new hold's normal. The orientation
+    turns from the start's to the end's along the way (the lift-off keeps the start's, the
+    approach has the end's)."""
     p = ctx.settings.contact_path
     robot = ctx.robot
     T_s = np.asarray(robot.T_world_surface(limb, q_s))
@@ -90,11 +96,16 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
     if target is not None and target.shape == "cylinder":
         back = back - float(back @ target.axis) * target.axis
     nb = float(np.linalg.norm(back))
-    front = approach + (p.carry_backoff * back / nb if nb > 1e-6 else np.zeros(3))
+    b = back / nb if nb > 1e-6 else np.zeros(3)
+    front = approach + p.carry_backoff * b
     start = lift if lift is not None else p_s
+    points = [lift] if lift is not None else []
+    behind = float((front - start) @ b)
+    if behind > 1e-3:  # back off to the front point's distance first, at the lift-off height
+        start = start + behind * b
+        points.append(start)
     k = p.carry_waypoints
-    carry = [start + (i / k) * (front - start) for i in range(1, k + 1)]
-    points = ([lift] if lift is not None else []) + carry + [approach]
+    points += [start + (i / k) * (front - start) for i in range(1, k + 1)] + [approach]
     poses = []
     d_rot = pin.log3(T_s[:3, :3].T @ T_e[:3, :3])
     poly = [p_s] + points + [p_e]
