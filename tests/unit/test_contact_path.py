@@ -87,7 +87,8 @@ def test_paths_keep_their_holds_and_stay_collision_free(problem, generic_plan):
         zone = [before.hold(t.moving_limb), t.target_stance.hold(t.moving_limb)] if t.moving_limb else []
         for i, q in enumerate(t.path):
             pos, ang = projector.errors(q)
-            assert pos <= tol_p and ang <= tol_a, f"transition {k} ({t.primitive}) q[{i}]: holds off by {pos} m, {ang} rad"
+            assert pos <= tol_p and ang <= tol_a, (
+                f"transition {k} ({t.primitive}) q[{i}]: holds off by {pos} m, {ang} rad")
             excluded = [(h.limb, h.env_surface) for h in t.stance.holds] + zone_exclusions(ctx, q, t.moving_limb, zone)
             d = chk.distances(q, excluded)
             assert d.min_distance >= 0.0, f"transition {k} q[{i}]: {d.pair} at {d.min_distance} m"
@@ -133,7 +134,7 @@ def test_a_released_limb_is_a_com_shift_then_its_placement(problem, tmp_path):
     a, b = cp.stances[0], cp.stances[2]
     assert a.hold("left_foot") is not None and b.hold("left_foot").centre[0] > a.hold("left_foot").centre[0] + 0.1
     split = ContactPlan(cp.robot, cp.environment, cp.joint_names, [a, a.without("left_foot"), b],
-                        [cp.transition_configurations[0], cp.transition_configurations[1], cp.transition_configurations[2]])
+                        list(cp.transition_configurations[:3]))
     steps = contact_plan_steps(library, split)
     assert [(s.kind, s.limb, s.unload) for s in steps] == [("release", "left_foot", ("left_foot",)),
                                                            ("limb", "left_foot", ())]
@@ -200,7 +201,8 @@ def test_a_cycle_of_the_best_first_search_becomes_a_whole_body_plan(problem):
             r = check_with_exclusions(robot, env, t.path[-1], nxt.stance, frozen, [(limb, released[0].env_surface)])
             assert r.feasible, f"transition {k}: {limb} not removable: {r.violated}"
         else:
-            assert t.moving_limb and t.target_stance.hold(t.moving_limb).env_surface == b.hold(t.moving_limb).env_surface
+            limb = t.moving_limb
+            assert limb and t.target_stance.hold(limb).env_surface == b.hold(limb).env_surface
         assert feasibility.check(robot, env, t.path[-1], t.target_stance, frozen).feasible, k
     last = res.plan.transitions[-1].target_stance
     assert [last.hold(f).env_surface for f in FEET] == ["rung_2", "rung_2"]
