@@ -397,15 +397,19 @@ class _Search:
 
     def _settle(self, node: Node, target: _Target) -> Node | None:
         """The node's stance with its configuration pulled to the milestone: the IK (every contact
-        regular) run to convergence instead of stopping at the first feasible iterate, then the
+        regular, a limb the node removed zero-force on its hold) run to convergence instead of stopping at the first feasible iterate, then the
         frozen check. The IK stops at the first configuration that passes the check, near its
         seed: with the limbs in place, the body may still be away from the goal's."""
         t = time.perf_counter()
         self.stats.ik_calls += 1
-        res = pcik.solve(self.robot, self.env, node.q, node.stance, q_target=target.q, params=self.pcik_params,
+        contacts = pcik.contacts_from_stance(node.stance)
+        left = [] if node.parent is None else [h for h in node.parent.stance.holds if node.stance.hold(h.limb) is None]
+        contacts += [pcik.ContactSpec(h.limb, pcik.ZERO_FORCE, hold=h) for h in left]  # a removal keeps its limb there
+        res = pcik.solve(self.robot, self.env, node.q, contacts, q_target=target.q, params=self.pcik_params,
                          feasibility_cfg=self.cfg, final_check=False)
         out = None
-        if not res.violated and feasibility.check(self.robot, self.env, res.q, node.stance, self.cfg).feasible:
+        if not res.violated and pcik.check_with_exclusions(self.robot, self.env, res.q, node.stance, self.cfg, [
+                (h.limb, h.env_surface) for h in left]).feasible:
             out = Node(node.stance, res.q, node.parent, node.move, node.depth)
             self._priority(out, target)
         self.stats.ik_time_s += time.perf_counter() - t
@@ -430,7 +434,7 @@ class _Search:
             _, _, node = heapq.heappop(queue)
             if self._reached(node, target, after):
                 return node
-            if after is None and self._limbs_in_place(node, target):
+            if node.base_distance > self.params.milestone_tolerance and self._limbs_in_place(node, target):
                 settled = self._settle(node, target)
                 if settled is not None and self._reached(settled, target, after):
                     return settled
