@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import time
 
 import numpy as np
@@ -176,3 +177,41 @@ def test_guide_path_of_another_robot_is_refused(g1, env):
     with pytest.raises(SpecError) as err:
         cs.search(g1, env, q0, stance0, bad)
     assert err.value.field == "guide_path.milestones[0]"
+
+
+@pytest.mark.skipif(os.environ.get("CLIMB_SLOW_TESTS") != "1",
+                    reason="scene searches take 40-90 s each: set CLIMB_SLOW_TESTS=1")
+@pytest.mark.parametrize("scene", ["stairs_handrail", "narrow_passage"])
+def test_scene_searched_from_the_guide_path(g1, scene, no_primitives):
+    """A shipped scene: feet on the surfaces under them at the start pose, the guide path to the
+    scene's goal, then the search; every added contact's configuration passes the frozen check,
+    the last base is at the goal, and some stance on the way holds a hand (the scenes' supports)."""
+    from climb_core import holds
+    from climb_core.contact import Stance
+    from climb_core.environment import build_environment
+    from planner_node import guide_path as gp
+
+    env = build_environment(scene)
+    q0 = gp.start_configuration(g1, env)
+    floor = env.contact_surfaces("foot")
+    feet = []
+    for f in FEET:
+        p = g1.T_world_surface(f, q0)[:3, 3]
+        sf = min(floor, key=lambda s: cs.surface_distance(s, p))
+        feet.append(holds.hold_from_configuration(g1, env, q0, f, sf.name))
+    stance0 = Stance(tuple(feet), name="start")
+    frozen = feasibility.load_config()
+    assert feasibility.check(g1, env, q0, stance0, frozen).feasible
+    path = gp.plan_for_environment(g1, env, q0).path
+    t0 = time.perf_counter()
+    result = cs.search(g1, env, q0, stance0, path)
+    print(f"\n{scene}: {time.perf_counter() - t0:.1f} s, {result.stats.as_dict()}")
+    stances, qs = result.plan.stances, result.plan.transition_configurations
+    for i in range(1, len(stances)):
+        added, removed = cs.transition_changes(stances[i - 1], stances[i])
+        assert len(added) + len(removed) == 1
+        if added:
+            res = feasibility.check(g1, env, qs[i], stances[i], frozen)
+            assert res.feasible, f"{scene} stance {i} ({result.moves[i - 1]}): {res.violated}"
+    assert np.linalg.norm(qs[-1][:3] - path.milestones[-1][:3]) <= load_settings().contact_search.goal_tolerance + 0.02
+    assert any(s.hold(h) is not None for s in stances for h in ("left_hand", "right_hand"))

@@ -23,7 +23,10 @@ other:
   ``milestone_tolerance`` of the milestone's, or is as close to the next milestone's base as this
   milestone's is (the guide path plans the free-flyer, where the limbs go is the search's), the
   last one when its base and every limb the milestone puts on a surface are within
-  ``goal_tolerance``; the next milestone is searched from that node; after the last one the
+  ``goal_tolerance``; a popped node whose limbs are in place but whose base is not is *settled*
+  first (the IK stops at its first feasible iterate, near its seed: the settling call runs it to
+  convergence toward the milestone, then the frozen check decides); the next milestone is
+  searched from the node that reached this one; after the last one the
   stance sequence and the transition configurations are read back up the tree
   (:class:`~climb_core.contact.ContactPlan`: consecutive stances differ by exactly one hold).
 
@@ -36,7 +39,8 @@ Base position and the four contact surfaces' positions are what a contact transi
 what the guide path prescribes (the robot's place and where its limbs are); they are in metres
 and comparable across robots. The joints enter with a small weight (per radian, RMS so that the
 number of joints does not matter): they separate postures that put the limbs at the same places
-without dominating the task-space terms. A node's priority is d to the milestone, plus
+without dominating the task-space terms. With ``lookahead``, a node's priority is the smaller of its costs to the targeted milestone and
+to the next one. A node's cost is d to the milestone, plus
 ``floating_cost_weight`` times the floating limb's distance to its milestone position (the paper's
 cost of an added contact), where a limb without a contact counts, instead of its distance, the
 least it can be once placed again (its milestone place's distance to the closest surface that
@@ -45,7 +49,8 @@ ranks high, removing one already there ranks low, and a milestone whose limbs ar
 guide path's in-between posture) does not make every removal look promising.
 
 Deterministic: ties in the queue are broken by insertion order, candidates are enumerated in a
-fixed order, and the IK is deterministic. Bounded by ``time_limit_s`` and ``max_nodes``; a
+fixed order, and the IK is deterministic (up to coal's warm-started distance queries: the same
+moves, configurations equal to ~1e-4). Bounded by ``time_limit_s`` and ``max_nodes``; a
 failure raises :class:`~climb_core.errors.InfeasibleError` ``contact_search:<reason>`` with the
 nodes expanded and IK calls in the detail.
 """
