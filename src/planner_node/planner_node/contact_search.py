@@ -39,8 +39,8 @@ Base position and the four contact surfaces' positions are what a contact transi
 what the guide path prescribes (the robot's place and where its limbs are); they are in metres
 and comparable across robots. The joints enter with a small weight (per radian, RMS so that the
 number of joints does not matter): they separate postures that put the limbs at the same places
-without dominating the task-space terms. With ``lookahead``, a node's priority is the smaller of its costs to the targeted milestone and
-to the next one. A node's cost is d to the milestone, plus
+without dominating the task-space terms. With ``lookahead``, a node's priority is the smaller of
+its costs to the targeted milestone and to the next one. A node's cost is d to the milestone, plus
 ``floating_cost_weight`` times the floating limb's distance to its milestone position (the paper's
 cost of an added contact), where a limb without a contact counts, instead of its distance, the
 least it can be once placed again (its milestone place's distance to the closest surface that
@@ -61,7 +61,7 @@ import heapq
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -268,7 +268,8 @@ class _Search:
         self.kin = _Kinematics(robot)
         self.surfaces = {limb: accepting_surfaces(robot, env, limb) for limb in self.kin.frames}
         # a ladder is climbed on three supports; elsewhere the robot also walks (single support)
-        self.min_contacts = params.min_contacts if getattr(env, "ladder", None) is not None else params.min_contacts_scene
+        on_ladder = getattr(env, "ladder", None) is not None
+        self.min_contacts = params.min_contacts if on_ladder else params.min_contacts_scene
         self.stats = SearchStats()
         self.t0 = time.perf_counter()
         self.best: tuple[float, int] = (math.inf, -1)  # closest distance to the milestone, its index
@@ -402,9 +403,9 @@ class _Search:
 
     def _settle(self, node: Node, target: _Target) -> Node | None:
         """The node's stance with its configuration pulled to the milestone: the IK (every contact
-        regular, a limb the node removed zero-force on its hold) run to convergence instead of stopping at the first feasible iterate, then the
-        frozen check. The IK stops at the first configuration that passes the check, near its
-        seed: with the limbs in place, the body may still be away from the goal's."""
+        regular, a limb the node removed zero-force on its hold) run to convergence instead of
+        stopping at its first feasible iterate (near its seed: with the limbs in place, the body
+        may still be away from the milestone's), then the frozen check."""
         t = time.perf_counter()
         self.stats.ik_calls += 1
         contacts = pcik.contacts_from_stance(node.stance)
@@ -494,7 +495,8 @@ def search(robot: Any, env: Any, q_start: np.ndarray, stance_start: Stance, path
     params = params or settings.contact_search
     pcik_params = pcik_params or settings.pcik
     if path.robot != robot.config.name:
-        raise SpecError("guide_path.robot", f"must be the robot searched for ({robot.config.name!r}), got {path.robot!r}")
+        raise SpecError("guide_path.robot",
+                        f"must be the robot searched for ({robot.config.name!r}), got {path.robot!r}")
     if not path.milestones:
         raise SpecError("guide_path.milestones", "needs at least one milestone")
     nq = robot.model.nq
