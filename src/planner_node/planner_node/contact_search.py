@@ -18,7 +18,8 @@ other:
   ``min_contacts_scene`` elsewhere (1: single support, walking);
 - branching: the surfaces of a free limb beyond its reach from its root (hip / shoulder) are
   pruned before any IK call; of the others, the ``max_surfaces_per_limb`` closest to the limb's
-  place at the milestone are tried (0: all of them, the paper's exhaustive expansion);
+  place at the milestone are tried, closest first (0: all of them, the paper's exhaustive
+  expansion), until one puts the limb within ``key_resolution`` of that place;
 - a node reaches an intermediate milestone when its base (position and rotation) is within
   ``milestone_tolerance`` of the milestone's, or is as close to the next milestone's base as this
   milestone's is (the guide path plans the free-flyer, where the limbs go is the search's), the
@@ -347,12 +348,13 @@ class _Search:
                     self.stats.pruned_by_reach += 1
                 else:
                     candidates.append(sf)
+            # closest to the limb's milestone place first, at most max_surfaces_per_limb of them
+            candidates.sort(key=lambda sf: surface_distance(sf, preferred))  # stable: ties in env order
             cap = self.params.max_surfaces_per_limb
-            if cap and len(candidates) > cap:  # the surfaces closest to the limb's milestone place
-                order = sorted(range(len(candidates)), key=lambda i: (surface_distance(candidates[i], preferred), i))
+            if cap and len(candidates) > cap:
                 self.stats.pruned_by_rank += len(candidates) - cap
-                candidates = [candidates[i] for i in sorted(order[:cap])]
-            for sf in candidates:
+                candidates = candidates[:cap]
+            for k, sf in enumerate(candidates):
                 if self._out_of_budget():
                     return out
                 spec = pcik.ContactSpec(limb, pcik.FLOATING, surface=sf.name, preferred_position=preferred)
@@ -361,6 +363,10 @@ class _Search:
                     continue
                 child = Stance(stance.holds + (res.holds[limb],), name=f"add:{limb}@{sf.name}")
                 out.append((Node(child, res.q, node, f"add:{limb}@{sf.name}", node.depth + 1), (limb, preferred)))
+                if np.linalg.norm(res.holds[limb].centre - preferred) <= self.params.key_resolution:
+                    # the limb landed at its milestone place: a farther surface would not rank better
+                    self.stats.pruned_by_rank += len(candidates) - k - 1
+                    break
         if len(stance.holds) > self.min_contacts:  # remove each contact (zero force)
             for h in stance.holds:
                 child = stance.without(h.limb)
