@@ -273,7 +273,7 @@ class _Search:
         self.min_contacts = params.min_contacts if on_ladder else params.min_contacts_scene
         self.stats = SearchStats()
         self.t0 = time.perf_counter()
-        self.best: tuple[float, int] = (math.inf, -1)  # closest distance to the milestone, its index
+        self.best: tuple[float, float] = (math.inf, math.inf)  # closest (configuration, base) distance [m]
 
     def target(self, q: np.ndarray) -> _Target:
         limbs = self.kin.limb_positions(q)
@@ -437,7 +437,7 @@ class _Search:
         heapq.heappush(queue, (self._priority(root, target, after), counter, root))
         seen = {stance_key(root.stance, self.params.key_resolution)}
         expanded: set = set()
-        self.best = (root.distance, index)
+        self.best = (root.distance, root.base_distance)
         self.last = after is None
         while queue:
             reason = self._out_of_budget()
@@ -464,7 +464,7 @@ class _Search:
                 seen.add(ckey)
                 counter += 1
                 prio = self._priority(child, target, after, floating)
-                self.best = min(self.best, (child.distance, index))
+                self.best = min(self.best, (child.distance, child.base_distance))
                 heapq.heappush(queue, (prio, counter, child))
                 self.stats.nodes_pushed += 1
         self._fail("exhausted", index)
@@ -473,11 +473,11 @@ class _Search:
     def _fail(self, reason: str, index: int) -> None:
         s = self.stats
         s.time_s = time.perf_counter() - self.t0
-        tol = (f"{self.params.goal_tolerance} m on the configuration" if self.last
+        tol = (f"{self.params.goal_tolerance} m on the base and the limbs it puts on surfaces" if self.last
                else f"{self.params.milestone_tolerance} m on the base")
         raise InfeasibleError(f"contact_search:{reason}", (
-            f"milestone {index} not reached: closest node {self.best[0]:.3f} m away (configuration distance; "
-            f"tolerance {tol}) after {s.nodes_expanded} nodes expanded, {s.ik_calls} IK calls "
+            f"milestone {index} not reached: closest node at configuration distance {self.best[0]:.3f} m, its base "
+            f"{self.best[1]:.3f} m from the milestone's (tolerance {tol}) after {s.nodes_expanded} nodes expanded, {s.ik_calls} IK calls "
             f"({s.ik_failures} failed), {s.time_s:.1f} s (time limit {self.params.time_limit_s} s, node budget "
             f"{self.params.max_nodes})"))
 
