@@ -62,6 +62,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--command-delay", type=int, default=0, choices=(0, 1),
                     help="1: every command acts one control period late (a robot's actuation latency; "
                          "the controller then computes each command for the state one period ahead)")
+    ap.add_argument("--strategy", default="primitives", choices=("primitives", "search"),
+                    help="planning: primitives (the ladder paper; ladders) | search (free-flyer guide path + "
+                         "best-first contact search; ladders and scenes)")
+    ap.add_argument("--start-posture", default="", choices=("", "standing", "ladder_4_contacts"),
+                    help="stance the robot starts in (default: the primitive library's start; standing for search)")
     ap.add_argument("--timeout", type=float, default=1200.0, help="[s] wall time for the whole graph run")
     return ap
 
@@ -71,7 +76,8 @@ def _request(args):
 
     return ClimbRequest(ladder=args.scenario, robot=args.robot, rungs=args.rungs, mode=args.mode,
                         out_dir=args.out, seed=args.seed, bag=not args.no_bag, snapshots=args.snapshots,
-                        descend=args.descend, plan_cycles=args.plan_cycles, command_delay_ticks=args.command_delay)
+                        descend=args.descend, plan_cycles=args.plan_cycles, command_delay_ticks=args.command_delay,
+                        strategy=args.strategy, start_posture=args.start_posture)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -82,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     req = _request(args)
     summary = base_summary(req)
     try:
-        check_scene(args.scenario, summary)
+        check_scene(args.scenario, summary, args.strategy)
         check_request(req) if args.graph != "inprocess" else None
     except SpecError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -100,9 +106,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2 if isinstance(exc, SpecError) else 1
 
 
-def check_scene(source: str, summary: dict) -> None:
+def check_scene(source: str, summary: dict, strategy: str) -> None:
     """Add a scene's summary fields (scene_spec.md "Results", nothing reached yet) and refuse a
-    scene without a ladder unless the planner's strategy is `search` (SpecError)."""
+    scene without a ladder unless the strategy is `search` (SpecError)."""
     from climb_core.ladder import load_scenario
     from climb_core.scene import require_search_strategy
 
@@ -113,10 +119,8 @@ def check_scene(source: str, summary: dict) -> None:
     if scenario.scene.goal is not None:
         summary.update(goal_reached=False, goal_distance_m=None)
     if scenario.ladder is None:
-        from planner_node.settings import load_settings
-
         summary.update(rungs_requested=0, rungs_reached=0)
-        require_search_strategy(scenario, load_settings().planning.strategy)
+        require_search_strategy(scenario, strategy)
 
 
 # ------------------------------------------------------------------------------ in process
@@ -289,7 +293,8 @@ def _drive(args, req, summary: dict, graph, say, t_start: float) -> dict:
         goal = ClimbAction.Goal(robot=req.robot, scenario=str(req.ladder), rungs=int(req.rungs),
                                 controller_mode=req.mode, seed=int(req.seed or 0), descend=bool(req.descend),
                                 plan_cycles=int(req.plan_cycles or 0),
-                                command_delay_ticks=int(req.command_delay_ticks))
+                                command_delay_ticks=int(req.command_delay_ticks), strategy=req.strategy,
+                                start_posture=req.start_posture)
         if req.plan_timeout_s:
             goal.planning_timeout_s = float(req.plan_timeout_s)
         if "\n" not in goal.scenario and pathlib.Path(goal.scenario).is_file():

@@ -1,7 +1,10 @@
 #!/usr/bin/env python3
-"""Plan a ladder climb or a scene (motion primitive adaptation + multi-step search), print the JSON summary.
+"""Plan a ladder climb or a scene, print the JSON summary: motion primitive adaptation under the
+multi-step search (the ladder paper), or with --strategy search the free-flyer guide path and the
+best-first contact search (the DARPA-tasks paper), then the adaptation.
 
     scripts/plan.py --scenario default --robot g1 --steps 2 [--timeout 120] [--seed 0] [--out plan.json]
+    scripts/plan.py --scenario default --strategy search --start ladder_4_contacts --steps 3
 
 --scenario (alias --ladder) is a name in config/ladders/ or config/scenes/, or a scenario file
 (shared/specs/ladder_spec.md, scene_spec.md). The last line on standard output is one JSON object
@@ -32,7 +35,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--steps", type=int, default=2, help="climbing cycles after the mount (feet end on rung N)")
     ap.add_argument("--timeout", type=float, default=None, help="planning wall-time limit [s] (default: config)")
     ap.add_argument("--seed", type=int, default=None, help="random seed (default: config)")
-    ap.add_argument("--strategy", default=None, help="primitive library (default: config, e.g. forward)")
+    ap.add_argument("--strategy", default=None,
+                    help="search: the DARPA-tasks paper's free-flyer guide path + best-first contact search "
+                         "(ladders and scenes); otherwise a primitive library (default: config, e.g. forward)")
     ap.add_argument("--start", default=None, help="start stance fixture (default: the library's, standing)")
     ap.add_argument("--out", default=None, help="write the whole-body plan (JSON) to this file")
     ap.add_argument("--verify", action="store_true", help="re-check the plan at 4x the discretisation")
@@ -139,6 +144,8 @@ def run(args: argparse.Namespace):
     from planner_node.settings import load_settings
 
     settings = load_settings()
+    if args.strategy == "search":
+        return run_search(args, settings)
     if args.strategy:
         settings = dataclasses.replace(settings, planning=dataclasses.replace(settings.planning,
                                                                               strategy=args.strategy))
@@ -176,6 +183,46 @@ def run(args: argparse.Namespace):
                           else None)
         extra["verified"] = rep.ok and (not args.descend or rep.goal_feet_rungs == (0, 0))
         extra["verify"] = rep.summary()
+    return result, extra
+
+
+def run_search(args: argparse.Namespace, settings):
+    """``--strategy search``: guide path -> best-first contact search -> adaptation
+    (planner_node.pipeline), from ``--start`` (default: standing at the scenario's start pose);
+    the feet end on rung ``--steps`` of a ladder, or the base at a scene's goal."""
+    from climb_core import fixtures
+    from climb_core.environment import build_environment
+    from climb_core.errors import SpecError
+    from climb_core.ladder import load_scenario
+    from climb_core.robot import load_robot
+    from planner_node import pipeline
+
+    if args.descend:
+        raise SpecError("descend", "not with strategy search (a searched plan goes to its goal)")
+    scenario = load_scenario(args.scenario)
+    env = build_environment(scenario)
+    robot = load_robot(args.robot)
+    start = None
+    if args.start:
+        stance, q = fixtures.get(args.start, robot, env)
+        start = (q, stance)
+    request = pipeline.PlanRequest(id="plan.py", robot=robot.config.name, scenario=scenario.name or "custom",
+                                   rungs=max(1, args.steps), seed=args.seed, timeout_s=args.timeout, strategy="search")
+    problem = pipeline.Problem(request, robot, scenario, env, None, settings, start=start)
+    guide = pipeline.guide_path(problem, strategy="search")
+    contacts = pipeline.contact_search(problem, guide.product, strategy="search")
+    result, _ = pipeline.adapt(problem, contacts.product, strategy="search")
+    extra: dict = {"strategy": "search", "guide_path": guide.summary,
+                   "contact_search": {k: v for k, v in contacts.summary.items() if k != "moves"},
+                   "moves": contacts.summary["moves"]}
+    if scenario.scene is not None:
+        extra.update(scene_fields(scenario, result))
+    if args.out and result.plan is not None:
+        from planner_node import plan_io
+
+        extra["plan_file"] = str(plan_io.save_plan(args.out, result.plan, {
+            "ladder": args.scenario, "robot": args.robot, "steps": args.steps, "seed": args.seed,
+            "strategy": "search", "summary": result.summary(), "subtasks": result.subtasks}))
     return result, extra
 
 

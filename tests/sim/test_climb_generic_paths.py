@@ -3,16 +3,22 @@
 whole-body by generic contact-body paths only (planner_node.contact_path, an empty primitive
 library), then executed in lock-step against PyBullet by the QP controller in process. Judged on
 the simulator's ground truth (tests/sim/climb_checks.py): the feet stand on rung 1, nothing fell,
-unilateral loads inside their friction cones."""
+unilateral loads inside their friction cones.
+
+Opt-in (CLIMB_SLOW_TESTS=1: 77 s of sim time, 200-240 s wall on this machine): make test executes
+generic paths through tests/sim/test_climb_search.py (a searched rung, no primitives, 50-70 s)."""
 from __future__ import annotations
 
+import os
 import time
 
 import pytest
 
 from climb_checks import assert_standing_on, check_run
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim,
+              pytest.mark.skipif(os.environ.get("CLIMB_SLOW_TESTS") != "1",
+                                 reason="a 1-rung generic climb from the ground (200-240 s): set CLIMB_SLOW_TESTS=1")]
 
 RUNGS = 1
 

@@ -1,7 +1,8 @@
-"""A climb planned by the DARPA-tasks paper's method (``strategy: search``) and executed in-process
-on G1: from the 4-contact stance on rung 1 (hands on rung 5), the free-flyer guide path, the
-best-first contact search (no seed holds: it chose every hold) and the adaptation, then the QP
-controller in lock-step with a one-period actuation latency, to both feet on rung 2."""
+"""A climb planned by the DARPA-tasks paper's method (``strategy: search``) without any motion
+primitive, executed in-process on G1: from the 4-contact stance on rung 1 (hands on rung 5), the
+free-flyer guide path, the best-first contact search (it chose every hold) and generic
+contact-body paths for every transition (the primitive directory points at an empty one), then
+the QP controller in lock-step with a one-period actuation latency, to both feet on rung 2."""
 from __future__ import annotations
 
 import pytest
@@ -11,11 +12,32 @@ from climb_checks import assert_standing_on, check_run
 pytestmark = pytest.mark.sim
 
 
-def test_a_searched_rung_is_executed_to_both_feet_on_rung_2(tmp_path):
+def test_a_searched_rung_without_primitives_is_executed_to_both_feet_on_rung_2(tmp_path, monkeypatch):
+    import dataclasses
+
     from climb_coordinator.climb import ClimbRequest, run_climb
     from climb_coordinator.settings import load_climb_settings
+    from planner_node import climb_planner
+
+    library_loads = []  # what the adaptation found in the primitive directory: no library at all
+    real_load = climb_planner.load_library
+
+    def recorded_load(*args, **kwargs):
+        try:
+            library = real_load(*args, **kwargs)
+        except Exception as exc:
+            library_loads.append(f"{type(exc).__name__}: {exc}")
+            raise
+        library_loads.append(f"{len(library.primitives)} primitives")
+        return library
+
+    monkeypatch.setattr(climb_planner, "load_library", recorded_load)
 
     settings = load_climb_settings()
+    empty = tmp_path / "no_primitives"
+    empty.mkdir()
+    settings = dataclasses.replace(settings, planner_overrides={**settings.planner_overrides,
+                                                                "planning.primitives_dir": str(empty)})
     result = run_climb(ClimbRequest(ladder="default", robot="g1", rungs=2, mode="qp", out_dir=tmp_path, seed=0,
                                     strategy="search", start_posture="ladder_4_contacts", command_delay_ticks=1),
                        settings)
@@ -24,6 +46,8 @@ def test_a_searched_rung_is_executed_to_both_feet_on_rung_2(tmp_path):
         feet, loads = check_run(result, settings, "qp")
         assert s["success"], s["failure_reason"]
         assert set(s["plan_stages_s"]) == {"guide_path", "contact_search", "adaptation"}
+        # no primitive could be used: the adaptation found no library (every transition generic)
+        assert library_loads and all(x.startswith("SpecError: primitives") for x in library_loads), library_loads
         assert feet == {"left_foot": 2, "right_foot": 2}, feet
         for foot in ("left_foot", "right_foot"):
             assert_standing_on(result.backend, foot, 2)

@@ -144,7 +144,7 @@ class SearchPlanSource:
         from planner_node import pipeline
         from planner_node.plan_io import stance_to_dict
 
-        from .session import _stance_feet_rung
+        from .session import stance_feet_rung
 
         t0 = time.perf_counter()
         if start is None:  # the first plan: the feet end on rung ``steps`` (= the request's rungs)
@@ -152,7 +152,7 @@ class SearchPlanSource:
             target = int(steps)
         else:  # a replan: ``steps`` more rungs above the held stance's feet
             q, stance = start
-            target = _stance_feet_rung(stance) + int(steps)
+            target = stance_feet_rung(stance) + int(steps)
         request = pipeline.PlanRequest(id="in-process", robot=self.robot.config.name, scenario=self.env.name,
                                        rungs=target, seed=self.req.seed, timeout_s=self.req.plan_timeout_s,
                                        strategy="search",

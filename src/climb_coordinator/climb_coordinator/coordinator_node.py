@@ -44,8 +44,8 @@ import numpy as np
 from climb_core.errors import ClimbError, SpecError
 from climb_core.params import param
 
-from .session import (MAX_FORCED_REPLANS, ClimbRequest, ClimbSession, ExecStatus, PlanOutcome, check_request,
-                      controller_overrides, ladder_name)
+from .session import (MAX_FORCED_REPLANS, ClimbRequest, ClimbSession, ExecStatus, PlanOutcome, stance_feet_rung,
+                      check_request, controller_overrides, ladder_name)
 
 NODE_NAME = "climb_coordinator"
 PLAN_STAGES = ("guide_path", "contact_search", "primitive_adaptation")
@@ -164,7 +164,8 @@ def request_from_msg(msg: Any, default_robot: str, max_forced_replans: int = MAX
                         mode=msg.controller_mode or "qp", seed=int(msg.seed), bag=False,
                         plan_timeout_s=float(msg.planning_timeout_s) or None, descend=bool(msg.descend),
                         plan_cycles=int(msg.plan_cycles) or None, command_delay_ticks=int(msg.command_delay_ticks),
-                        max_forced_replans=max_forced_replans)
+                        max_forced_replans=max_forced_replans, strategy=getattr(msg, "strategy", "") or "primitives",
+                        start_posture=getattr(msg, "start_posture", ""))
 
 
 def main(args: list[str] | None = None) -> int:
@@ -622,13 +623,13 @@ def _make_node():
             accepted = {"id": run.id, "robot": req.robot, "scenario": text, "scenario_name": name,
                         "rungs": req.rungs, "mode": req.mode, "seed": req.seed, "descend": req.descend,
                         "plan_cycles": req.plan_cycles or 0, "command_delay_ticks": req.command_delay_ticks,
-                        "planning_timeout_s": req.plan_timeout_s or 0.0,
-                        "stamp": time.time()}
+                        "planning_timeout_s": req.plan_timeout_s or 0.0, "strategy": req.strategy,
+                        "start_posture": req.start_posture, "stamp": time.time()}
             safe_publish(self.pub_request, String(data=json.dumps(accepted)))
             self._publish_description(req.robot)
             self._marker_scene = (req.robot, text)
             self.status("idle", "preparing: the controller and the simulator")
-            fixture = self._start_fixture(req.robot)
+            fixture = self._start_fixture(req)
             period = load_controller_params().control_period_s
             overrides = controller_overrides(req, self.cs, period)
             overrides.update({"robot": req.robot, "ladder": text, "initial_stance": fixture})
@@ -669,12 +670,28 @@ def _make_node():
                 self.status(names.get(phase, phase), text)
             return on_phase
 
-        def _start_fixture(self, robot: str) -> str:
+        def _start_fixture(self, req: ClimbRequest) -> str:
+            """The stance the climb starts in: the request's, else standing (search) or the
+            primitive library's start."""
             from planner_node.primitives import load_library
             from planner_node.settings import load_settings
 
+            if req.start_posture:
+                return req.start_posture
+            if req.strategy == "search":
+                return "standing"
             p = load_settings().planning
-            return load_library(robot, p.strategy, p.primitives_dir).initial_fixture
+            return load_library(req.robot, p.strategy, p.primitives_dir).initial_fixture
+
+        def fixture_start(self, req: ClimbRequest):
+            """(q, stance) of the request's start posture fixture on the request's scenario."""
+            from climb_core import fixtures
+            from climb_core.environment import build_environment
+            from climb_core.robot import load_robot
+
+            robot = load_robot(req.robot)
+            stance, q = fixtures.get(req.start_posture, robot, build_environment(scenario_source(req.ladder)[1]))
+            return q, stance
 
         def _prepare_controller(self, overrides: dict) -> None:
             state = self.lifecycle_state()
@@ -779,7 +796,12 @@ def _make_node():
             self.attempt += 1
             rid = f"{run.id}-{self.attempt}"
             request = {"id": rid, "robot": req.robot, "scenario": self.scenario, "rungs": int(steps),
-                       "seed": req.seed, "timeout_s": req.plan_timeout_s, "descend": bool(req.descend)}
+                       "seed": req.seed, "timeout_s": req.plan_timeout_s, "descend": bool(req.descend),
+                       "strategy": req.strategy}
+            if start is None and req.strategy == "search" and req.start_posture not in ("", "standing"):
+                start = node.fixture_start(req)  # the search starts where the simulator put the robot
+            elif start is not None and req.strategy == "search":  # a replan: `steps` rungs above its feet
+                request["rungs"] = stance_feet_rung(start[1]) + int(steps)
             if start is not None:
                 q, stance = start
                 request["start"] = {"q": [float(x) for x in q], "stance": stance_to_dict(stance)}

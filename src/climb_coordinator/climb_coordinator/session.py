@@ -128,7 +128,9 @@ def check_request(req: ClimbRequest) -> Any:
         raise SpecError("robot", f"unknown robot {req.robot!r} (known: {', '.join(known)})")
     scenario = load_scenario(req.ladder)
     if getattr(scenario, "ladder", None) is None:
-        raise SpecError("scenario.ladder", "the climb needs a scenario with a ladder block")
+        raise SpecError("scenario.ladder", "executing a scene without a ladder is not supported yet (its goal judge "
+                                           "and palm contacts in the controller are missing): plan it with "
+                                           "scripts/plan.py --strategy search")
     from planner_node.settings import load_settings
 
     p = load_settings().planning
@@ -217,7 +219,7 @@ def replan_stance(plan: WholeBodyPlan, index: int) -> Stance:
     return plan.transitions[index - 1].target_stance if index > 0 else plan.initial_stance
 
 
-def _stance_feet_rung(stance: Stance) -> int:
+def stance_feet_rung(stance: Stance) -> int:
     from .judge import rung_index
 
     rungs = [rung_index(h.env_surface) for h in stance.holds if h.limb in FEET]
@@ -327,7 +329,7 @@ class ClimbSession:
                   and forced < req.max_forced_replans):
                 forced += 1
                 stance = replan_stance(self.current, status.transition_index)
-                k = max(1, req.rungs - _stance_feet_rung(stance))
+                k = max(1, req.rungs - stance_feet_rung(stance))
                 record = {"cycles": k, "reason": "replan_needed",
                           "transition": self.done_before + max(status.transition_index, 0)}
                 self.say(f"replan_needed at transition {record['transition'] + 1}: replanning {k} cycle(s) "
