@@ -19,6 +19,17 @@ FEET = ("left_foot", "right_foot")
 HANDS = ("left_hand", "right_hand")
 
 
+def limb_type(limb: str) -> str:
+    """``foot`` or ``hand``: the limb type a surface's ``contact`` list names (SpecError otherwise)."""
+    if limb in FEET:
+        return "foot"
+    if limb in HANDS:
+        return "hand"
+    from climb_core.errors import SpecError
+
+    raise SpecError("limb", f"must be one of {', '.join(LIMBS)}; got {limb!r}")
+
+
 @dataclass(frozen=True)
 class ContactPoint:
     position: np.ndarray  # [m] world frame, shape (3,)

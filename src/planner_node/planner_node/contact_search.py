@@ -69,20 +69,11 @@ import pinocchio as pin
 
 from climb_core import feasibility
 from climb_core import holds as holds_mod
-from climb_core.contact import FEET, HANDS, LIMBS, ContactPlan, GuidePath, Hold, Stance
+from climb_core.contact import LIMBS, ContactPlan, GuidePath, Hold, Stance, limb_type
 from climb_core.errors import InfeasibleError, SpecError
 
 from . import pcik
 from .settings import ContactSearchParams, PCIKParams
-
-def limb_type(limb: str) -> str:
-    """``hand`` or ``foot``."""
-    if limb in HANDS:
-        return "hand"
-    if limb in FEET:
-        return "foot"
-    raise SpecError("contact_search.limb", f"must be one of {', '.join(LIMBS)}; got {limb!r}")
-
 
 def accepting_surfaces(robot: Any, env: Any, limb: str) -> list[Any]:
     """The environment surfaces ``limb`` may be placed on (``Environment.contact_surfaces``), in

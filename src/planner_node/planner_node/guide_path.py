@@ -42,21 +42,15 @@ import numpy as np
 import pinocchio as pin
 import yaml
 
-from climb_core.contact import FEET, GuidePath
+from climb_core.contact import FEET, GuidePath, limb_type
 from climb_core.errors import InfeasibleError, SpecError
 
 from .settings import GuidePathParams, load_settings
 
-#: limb types and the ladder roles that accept them when the environment has no contact_surfaces()
-FALLBACK_ROLES = {"foot": ("ground", "rung", "tread", "platform"), "hand": ("rung", "rail")}
 #: reference postures the planner needs in every postures file (any order; more are allowed)
 REQUIRED_POSTURES = ("standing", "climbing", "crouching")
 #: fixture whose feet rung and base give the standing-on-rung offset
 LADDER_FIXTURE = "ladder_4_contacts"
-
-
-def limb_type(limb: str) -> str:
-    return "foot" if limb in FEET else "hand"
 
 
 # --------------------------------------------------------------------------------------------
@@ -231,12 +225,8 @@ def _surface_set(surfaces: Sequence[Any], top_only: bool) -> _SurfaceSet:
 
 
 def contact_surfaces(env: Any, kind: str) -> list[Any]:
-    """Surfaces accepting a limb type ("foot" | "hand"): ``env.contact_surfaces`` when the
-    environment has it, the ladder roles of :data:`FALLBACK_ROLES` otherwise."""
-    query = getattr(env, "contact_surfaces", None)
-    if callable(query):
-        return [env.surfaces[s] if isinstance(s, str) else s for s in query(kind)]
-    return [s for s in env.surfaces.values() if s.role in FALLBACK_ROLES[kind]]
+    """Surfaces accepting a limb type ("foot" | "hand"): ``env.contact_surfaces``, as Surfaces."""
+    return [env.surfaces[s] if isinstance(s, str) else s for s in env.contact_surfaces(kind)]
 
 
 # --------------------------------------------------------------------------------------------
