@@ -16,7 +16,7 @@ other:
   hold carrying nothing: the robot is in equilibrium on the others); on success the set without it
   is pushed; sets keep more than ``min_contacts`` contacts on a ladder (the three-support gait),
   ``min_contacts_scene`` elsewhere (1: single support, walking);
-- branching: the surfaces of a free limb beyond its reach from its root (hip / shoulder) are
+- branching: the surfaces of a free limb beyond its reach from its root (hip; an arm: the waist, whose chain holds the shoulder) are
   pruned before any IK call; of the others, the ``max_surfaces_per_limb`` closest to the limb's
   place at the milestone are tried, closest first (0: all of them, the paper's exhaustive
   expansion), until one puts the limb within ``key_resolution`` of that place;
@@ -96,7 +96,7 @@ def accepting_surfaces(robot: Any, env: Any, limb: str) -> list[Any]:
 
 @dataclass(frozen=True)
 class _LimbReach:
-    root_joint: int  # Pinocchio joint id of the limb's first joint (hip / shoulder)
+    root_joint: int  # Pinocchio joint id of the limb's first joint (hip pitch; an arm: the waist yaw)
     length: float  # [m] upper bound of the root-to-contact-surface distance
 
 

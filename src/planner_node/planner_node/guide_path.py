@@ -803,14 +803,7 @@ def plan_for_environment(robot: Any, env: Any, q_start: np.ndarray, rungs: int |
 
 def start_configuration(robot: Any, env: Any) -> np.ndarray:
     """The robot's reference configuration standing at the scene's ``start_pose`` (x, y, yaw)."""
-    pose = getattr(env, "start_pose", None)
-    q = robot.q_reference().copy()
-    if pose is None:
-        return q
-    R = pin.rpy.rpyToMatrix(0.0, 0.0, math.radians(float(pose.yaw_deg)))
-    q[:3] = R @ q[:3] + np.array([float(pose.x), float(pose.y), 0.0])
-    q[3:7] = pin.Quaternion(R).coeffs()
-    return q
+    return env.place_at_start(robot.q_reference())
 
 
 def benchmark(scenario: str = "default", rungs: int = 3, robot_name: str = "g1", seed: int = 0,
