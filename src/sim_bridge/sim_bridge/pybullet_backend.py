@@ -1,7 +1,7 @@
 """PyBullet backend: the robot, the ladder and the ground in one private PyBullet client.
 
 One client per instance (``p.connect(p.DIRECT)``, GUI on request); every call passes
-``physicsClientId``. The robot is the core loader's simulation URDF (absolute meshes, tiny
+``physicsClientId``. The robot is the bridge's simulation URDF (sim_urdf.py: absolute meshes, tiny
 inertials, foot boxes, armature, fingers kept), loaded with its URDF inertias; the environment is
 ``sim_bridge.world_bodies.add_environment``. Physics runs at ``physics.dt_s`` (1 kHz),
 ``step()`` advances one control period (default 5 ms = 5 physics steps) and the actuator models
