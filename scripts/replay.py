@@ -550,6 +550,17 @@ def reexecute(args) -> int:
             # or it drops that state (an inactive lifecycle node ignores it) and the bridge damps t = 0
             wait_until_active(node, "controller", procs["controller"], 60.0)
         _wait_graph(node, 0.5)
+        if starts and first_cmd is not None and starts[0] <= first_cmd:
+            # the recorded controller took its first plan on its first tick (the coordinator
+            # activates it once the plan exists): the new one gets it before its first state
+            plan_pub.publish(plans[0])
+            state["next_plan"] = 1
+            gated.append(starts[0])
+            deadline = time.monotonic() + 30.0
+            while state["plans_accepted"] < 1:
+                rclpy.spin_once(node, timeout_sec=0.05)
+                if procs["controller"].poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError("the controller did not take the first plan")
         pubs["gripper"] = node.create_publisher(GripperCommand, "gripper_command", QoSProfile(depth=10))
         pubs["cmd"] = node.create_publisher(JointCommand, "joint_command", QoSProfile(depth=10))
         procs["sim_bridge"] = subprocess.Popen(bridge_cmd, env=env, cwd=ROOT, stdout=logs["sim_bridge"],
@@ -608,7 +619,8 @@ def reexecute(args) -> int:
     tmp.cleanup()
     new_starts = []  # the tick at which the new controller's FSM left its state after each plan
     for g in gated:
-        change = next((fsm[k][0] for k in range(1, len(fsm)) if fsm[k][0] >= g and fsm[k][1] != fsm[k - 1][1]), None)
+        change = next((fsm[k][0] for k in range(len(fsm)) if fsm[k][0] >= g and (
+            k == 0 or fsm[k][1] != fsm[k - 1][1] or fsm[k][0] < fsm[k - 1][0])), None)
         if change is not None:
             new_starts.append(change)
     import struct

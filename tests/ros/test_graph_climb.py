@@ -235,17 +235,33 @@ def _feet_from_contacts(msg, force_min: float = 20.0) -> dict:
 
 
 def _check_success(summary: dict, rungs: int, client: Client) -> None:
+    from climb_coordinator.coordinator_node import cone_use_for
+    from climb_coordinator.settings import load_climb_settings
+
     assert summary["success"], summary["failure_reason"]
     assert summary["fell"] is False
     assert summary["rungs_reached"] == rungs
     assert summary["feet_rungs"] == {f: rungs for f in FEET}, summary["feet_rungs"]
     assert summary["fsm_state"] == "hold"
+    assert summary["qp_failures"] == 0
+    # every unilateral contact load (>= climb.judge.cone_force_min) stayed inside its friction
+    # cone over the whole run, feet and pushing hands alike (the coordinator's judge of sim/contacts)
+    cs = load_climb_settings()
+    cones = summary["max_cone_use"]
+    assert set(FEET) <= set(cones), cones
+    assert all(v <= 1.0 + cs.cone_tolerance for v in cones.values()), cones
     # cross-check with the judge topic as the test received it
     with client.lock:
         last = client.contacts[-1][1]
         fell_any = any(m.fell for _, m in client.contacts)
+        received = [m for _, m in client.contacts]
     assert _feet_from_contacts(last) == {f: rungs for f in FEET}
     assert not fell_any
+    mine = cone_use_for(summary["ladder"], cs.cone_force_min)
+    for m in received:
+        mine.add_contacts(m)
+    assert mine.samples > 1000 and set(FEET) <= set(mine.max_use), mine.summary()
+    assert all(v <= 1.0 + cs.cone_tolerance for v in mine.max_use.values()), mine.summary()
 
 
 # ------------------------------------------------------------------------------ QP, action
@@ -329,6 +345,12 @@ class TestComplianceClimbThroughTheService:
         assert run["status"].phase == "done" and s["id"] == run["response"].id
         assert s["mode"] == "compliance"
         _check_success(s, 2, run["client"])
+        # no motor driver tripped on over-current (the bridge's step diagnostics, every 0.1 s)
+        with run["client"].lock:
+            steps = [d for _, d in run["client"].diagnostics if d.name.endswith("step")]
+        assert len(steps) > 100
+        tripped = {kv.value for d in steps for kv in d.values if kv.key == "tripped"}
+        assert tripped <= {""}, tripped
 
 
 # ------------------------------------------------------------------------------ replan, cancel
@@ -341,7 +363,7 @@ class TestForcedReplan:
     The planner refuses that start today (the hand ended its search inside the nominal rung; a
     limb projected back to its previous hold moves the base more than its 5 cm bound), so the
     climb ends with the reason; a replan the planner accepts is executed (session unit tests; the
-    plan_cycles replans of tests/sim/test_climb.py)."""
+    plan_cycles replans of tests/sim/test_climb_variants.py)."""
 
     @pytest.fixture(scope="class")
     def run(self, tmp_path_factory):

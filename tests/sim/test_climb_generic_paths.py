@@ -16,7 +16,7 @@ import pytest
 
 from climb_checks import assert_standing_on, check_run
 
-pytestmark = [pytest.mark.sim,
+pytestmark = [pytest.mark.sim, pytest.mark.heavy,
               pytest.mark.skipif(os.environ.get("CLIMB_SLOW_TESTS") != "1",
                                  reason="a 1-rung generic climb from the ground (200-240 s): set CLIMB_SLOW_TESTS=1")]
 

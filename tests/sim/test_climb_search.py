@@ -9,7 +9,7 @@ import pytest
 
 from climb_checks import assert_standing_on, check_run
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.heavy]
 
 
 def test_a_searched_rung_without_primitives_is_executed_to_both_feet_on_rung_2(tmp_path, monkeypatch):

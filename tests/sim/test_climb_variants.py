@@ -6,7 +6,7 @@ import pytest
 
 from climb_checks import RUNGS, assert_standing_on, check_run
 
-pytestmark = pytest.mark.sim
+pytestmark = [pytest.mark.sim, pytest.mark.heavy]
 
 
 def test_climb_one_rung_and_back_down(tmp_path):

@@ -163,6 +163,29 @@ def test_lost_controller_damps_every_joint_and_is_reported_then_recovers():
     assert any("back" in d.message for d in bridge.drain_diagnostics())
 
 
+def test_a_reset_world_waits_longer_for_its_first_command_then_the_usual_bounds_apply():
+    """After sim/reset the climb coordinator activates the controller once the first plan exists:
+    the world's first tick waits lockstep.reset_wait_s for it (no damped ticks meanwhile), the
+    ticks after it command_timeout_s, a lost controller lost_retry_s."""
+    bridge = make(**{"lockstep.reset_wait_s": 120.0, "lockstep.command_timeout_s": 1.0})
+    lock = bridge.params.lockstep
+    assert bridge.wait_budget() == lock.command_timeout_s  # a world not reset by the service
+    bridge.reset()
+    bridge.await_first_command()
+    assert bridge.wait_budget() == 120.0
+    assert bridge.offer_command(NAMES, [TORQUE] * 3, [1.0, 1.0, 1.0], stamp_ns=bridge.stamp_ns).accepted
+    bridge.step_lockstep()
+    assert bridge.wait_budget() == lock.command_timeout_s
+    bridge.reset()
+    bridge.await_first_command()
+    bridge.step_lockstep()  # the long wait ran out: lost, damped, retried at the lost pace
+    assert bridge.controller_lost and bridge.wait_budget() == lock.lost_retry_s
+    # the node's default (0): a reset world waits command_timeout_s like any tick
+    plain = make(**{"lockstep.command_timeout_s": 1.0})
+    plain.await_first_command()
+    assert plain.params.lockstep.reset_wait_s == 0.0 and plain.wait_budget() == 1.0
+
+
 def test_a_bad_command_is_rejected_and_the_tick_runs_on_the_last_valid_one():
     bridge = make()
     bridge.offer_command(NAMES, [TORQUE] * 3, [1.0, 2.0, 3.0], stamp_ns=0)

@@ -16,10 +16,12 @@ A climb (climb_coordinator.session.ClimbSession with the ROS adapters below):
   1. the controller (lifecycle node ``controller``): deactivated / cleaned up if needed, its
      parameters set for the request (robot, ladder, mode, initial stance, config/climb.yaml's
      controller overrides, the actuation latency of a command delay), configured;
-  2. ``sim/reset`` (robot, scenario text, the library's start fixture, seed), then the controller
-     activated: it holds the start posture from the new world's first state;
+  2. ``sim/reset`` (robot, scenario text, the library's start fixture, seed): the new world waits
+     at t = 0 for its first command (the bridge's ``lockstep.reset_wait_s`` in config/graph.yaml);
   3. ``plan/request`` (JSON) -> guide_path -> contact_search -> primitive_adaptation ->
-     ``whole_body_plan``, which the controller executes; stage statuses and times are followed;
+     ``whole_body_plan``; stage statuses and times are followed; the configured controller keeps
+     the plan, and is activated once the plan exists: it starts the plan on its first tick (the
+     planners get the machine instead of a lock-step pair holding a standing robot);
   4. ``controller/state`` is watched (heartbeat): at ``replan_needed`` a new plan from the measured
      state (joint_states + sim/base_truth) is requested (bounded), on a fall (``sim/contacts``), an
      FSM failure or a silent controller (no state for ``heartbeat_timeout_s`` of wall time: the
@@ -244,6 +246,7 @@ def _make_node():
             self.state_count = 0
             self.contacts: Any = None
             self.contacts_at = 0.0
+            self.cone_use: Any = None  # judge.ConeUse of the running climb (fed by sim/contacts)
             self.plans: dict[str, Any] = {}  # request id -> WholeBodyPlan msg
             self.stage_status: dict[str, dict[str, Any]] = {}  # request id -> stage -> (phase, text, t)
             self.tick_ms: list[float] = []
@@ -343,6 +346,8 @@ def _make_node():
             with self._cond:
                 self.contacts = msg
                 self.contacts_at = time.monotonic()
+                if self.cone_use is not None:
+                    self.cone_use.add_contacts(msg)
                 self._cond.notify_all()
 
         # -- the measured state (joint_states, sim/base_truth at 200 Hz) is read only when needed
@@ -637,27 +642,42 @@ def _make_node():
             if run.cancel.is_set():
                 raise Cancelled()
             if self.params.reset_sim:
-                self.drain_measured()
-                res = self.call(self.cli_reset, self._types["SimReset"].Request(
-                    robot=req.robot, ladder=text, initial_posture=fixture, seed=int(req.seed or 0)))
-                if not res.success:
-                    raise ClimbError(f"sim/reset refused: {res.error}")
-                # the new world's first state must reach the controller before it activates (it
-                # resets its contacts on the first state it ticks)
-                self.wait_message("joint_states", 5.0,
-                                  accept=lambda d: self._js_reader.read(d).stamp_ns < 500_000_000)
-                time.sleep(0.05)
-            count0 = self.state_count
-            self.change(ACTIVATE, "activate")
-            self._wait_heartbeat(count0, run)
+                self._reset_sim(req, text, fixture)
             plans = RosPlanSource(self, run, name if name in _shipped() else text)
-            executor = RosExecutor(self, run)
+            # the controller is activated once the first plan exists (as the in-process executor
+            # starts its runner then): meanwhile the reset world waits at t = 0 for its first
+            # command (the bridge's lockstep.reset_wait_s) instead of a lock-step pair spinning a
+            # standing robot at full speed on the cores the planners need
+            executor = RosExecutor(self, run, start=lambda: self._activate(run))
+            self.cone_use = cone_use_for(text, self.cs.cone_force_min)
             judge = RosJudge(self)
             session = ClimbSession(req, self.cs, plans, executor, judge,
                                    say=lambda m: self.get_logger().info(m), on_phase=self._on_phase(run))
             run.session = session
             executor.session = session
             return session.run()
+
+        def _reset_sim(self, req: ClimbRequest, text: str, fixture: str) -> None:
+            """The simulator reset to the climb's world, its first state (t = 0) published."""
+            self.drain_measured()
+            res = self.call(self.cli_reset, self._types["SimReset"].Request(
+                robot=req.robot, ladder=text, initial_posture=fixture, seed=int(req.seed or 0)))
+            if not res.success:
+                raise ClimbError(f"sim/reset refused: {res.error}")
+            # the new world's first state must reach the controller before it activates (it
+            # resets its contacts on the first state it ticks)
+            self.wait_message("joint_states", 5.0,
+                              accept=lambda d: self._js_reader.read(d).stamp_ns < 500_000_000)
+            time.sleep(0.05)
+
+        def _activate(self, run: ClimbRun) -> None:
+            """Activate the configured controller: it ticks on the reset world's first state and
+            starts the plan it received while inactive on that tick."""
+            if run.cancel.is_set():
+                raise Cancelled()
+            count0 = self.state_count
+            self.change(ACTIVATE, "activate")
+            self._wait_heartbeat(count0, run)
 
         def _on_phase(self, run: ClimbRun):
             names = {"planning": "guide_path"}
@@ -864,8 +884,9 @@ def _make_node():
         """Executor port: the controller node executes the plan it took from whole_body_plan; this
         watches controller/state (heartbeat, FSM, transitions) and sim/contacts (falls)."""
 
-        def __init__(self, node: CoordinatorNode, run: ClimbRun):
+        def __init__(self, node: CoordinatorNode, run: ClimbRun, start=None):
             self.node, self.climb = node, run
+            self._start_execution = start  # called once, with the first plan (reset + activate)
             self.session: ClimbSession | None = None
             self.plan = None
             self.t0_wall = time.monotonic()
@@ -875,6 +896,10 @@ def _make_node():
             self._seen = -1
 
         def start(self, plan) -> None:
+            if self._start_execution is not None:
+                start, self._start_execution = self._start_execution, None
+                start()
+                self.t0_wall = time.monotonic()  # the run's wall time counts from its first command
             self.plan = plan
             self._picked = False
             self._index = -1
@@ -980,6 +1005,10 @@ def _make_node():
                 a = np.asarray(self.ticks)
                 r["control_tick_ms"] = {"p50": round(float(np.percentile(a, 50)), 3),
                                         "p99": round(float(np.percentile(a, 99)), 3), "max": round(float(a.max()), 3)}
+            cone_use = self.node.cone_use
+            if cone_use is not None and cone_use.samples:
+                # largest tangential / (mu normal) of each unilateral contact (cone: <= 1)
+                r["max_cone_use"] = cone_use.summary()
             run = self.climb
             if run.first_command_at is not None:
                 r["coordinator_overhead_s"] = round(run.first_command_at - run.accepted_at, 3)
@@ -1063,6 +1092,15 @@ def build_markers(node: Any, scene: tuple[str, str], state: dict | None = None):
 
 
 _SCENE_CACHE: dict[str, Any] = {}
+
+
+def cone_use_for(scenario_text: str, force_min: float):
+    """A judge.ConeUse with the friction of every surface of the scenario (as simulated)."""
+    from .judge import ConeUse
+    from .markers import environment_of
+
+    env = environment_of(scenario_text)
+    return ConeUse({name: float(s.friction) for name, s in env.surfaces.items()}, force_min)
 
 
 def scene_markers(node: Any, scenario_text: str):

@@ -65,6 +65,38 @@ def limb_loads(backend) -> dict[str, LimbLoad]:
     return out
 
 
+class ConeUse:
+    """Largest friction-cone use (tangential / (mu normal), <= 1 inside the cone) of each limb's
+    unilateral contact over a run, from per-limb loads as sim/contacts carries them (or as
+    :func:`limb_loads` measures them in process). Grasped hands (bilateral) and loads under
+    ``force_min`` [N] (touch transients) are not judged; a surface without a friction is skipped."""
+
+    def __init__(self, surface_mu: dict[str, float], force_min: float):
+        self.surface_mu = dict(surface_mu)
+        self.force_min = float(force_min)
+        self.max_use: dict[str, float] = {}
+        self.samples = 0
+
+    def add(self, limb: str, normal: float, tangential: float, surface: str, grasped: bool) -> None:
+        mu = self.surface_mu.get(surface)
+        if grasped or not mu or normal < self.force_min:
+            return
+        use = tangential / (mu * normal)
+        if use > self.max_use.get(limb, -1.0):
+            self.max_use[limb] = use
+        self.samples += 1
+
+    def add_contacts(self, msg) -> None:
+        """One climb_msgs/SimContacts."""
+        for i, limb in enumerate(msg.limbs):
+            self.add(limb, float(msg.normal_force[i]), float(msg.tangential_force[i]), msg.surface[i],
+                     bool(msg.grasped[i]))
+
+    def summary(self) -> dict[str, float]:
+        """limb -> largest cone use [-] (rounded as in the climb summary)."""
+        return {limb: round(v, 3) for limb, v in sorted(self.max_use.items())}
+
+
 def rung_index(surface: str) -> int | None:
     """rung_3 -> 3, ground -> 0, anything else -> None."""
     if surface == "ground":

@@ -258,7 +258,9 @@ def fsm_segments(t: np.ndarray, states: list[str]) -> list[tuple[str, float, flo
 def plan_start_stamps(run: RunData) -> list[int]:
     """[ns] for each recorded whole_body_plan, the sim stamp of the first controller tick that
     acted on it: the first controller/state received after the plan whose FSM state differs from
-    the one before it (the FSM leaves idle / hold on the tick it takes a plan)."""
+    the one before it (the FSM leaves idle / hold on the tick it takes a plan), or that starts a
+    run (the first state, or the first after a sim reset: a controller activated once its plan
+    exists takes it on its first tick)."""
     out = []
     if not len(run.cs_t):
         return out
@@ -266,7 +268,7 @@ def plan_start_stamps(run: RunData) -> list[int]:
         after = np.nonzero(run.cs_log_ns >= log_ns)[0]
         stamp = None
         for i in after:
-            if i > 0 and run.fsm[i] != run.fsm[i - 1]:
+            if i == 0 or run.cs_t[i] < run.cs_t[i - 1] or run.fsm[i] != run.fsm[i - 1]:
                 stamp = int(round(run.cs_t[i] * _NS))
                 break
         if stamp is None and len(after):

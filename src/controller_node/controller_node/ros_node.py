@@ -189,6 +189,9 @@ class ControllerNode(LifecycleNode):
         self._subs: list = []
         self._timer = None
         self._reset_pending = True
+        # a plan received while inactive (or before the first tick of an activation, which resets
+        # the controller to the new world's state): started right after that reset
+        self._plan_at_activation = None
         self._latest: dict[str, object] = {}
         self._stamps: dict[str, int] = {}
         self._received_at = 0.0  # [s] perf_counter when the newest complete state arrived
@@ -329,6 +332,7 @@ class ControllerNode(LifecycleNode):
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.active = False
+        self._plan_at_activation = None
         self._stop_timers()
         return super().on_deactivate(state)
 
@@ -344,6 +348,7 @@ class ControllerNode(LifecycleNode):
 
     def _destroy(self) -> None:
         self.active = False
+        self._plan_at_activation = None
         self._stop_timers()
         for sub in self._subs:
             self.destroy_subscription(sub)
@@ -472,6 +477,13 @@ class ControllerNode(LifecycleNode):
                      values={"field": getattr(err, "field", "whole_body_plan"), "rule": getattr(err, "rule", str(err)),
                              "request_id": request_id})
             return
+        if not self.active or self._reset_pending:  # started after the activation's reset
+            self._plan_at_activation = plan
+            text = f"accepted whole_body_plan: {len(plan.transitions)} transitions (starts at activation)"
+            self.get_logger().info(text)
+            diagnose(self, "controller/plan", text, level=0,
+                     values={"request_id": request_id, "transitions": len(plan.transitions)})
+            return
         try:
             self.controller.set_plan(plan)
         except PlanRefused as err:
@@ -551,6 +563,9 @@ class ControllerNode(LifecycleNode):
             stance = fixtures.get(self.params.initial_stance, self.robot, self.env)[0]
             c.reset(state, stance)
             self._reset_pending = False
+            plan, self._plan_at_activation = self._plan_at_activation, None
+            if plan is not None:
+                c.set_plan(plan)  # a reset controller is idle: the plan is taken
         t_state = time.perf_counter()
         out = c.tick(state)
         # the command goes out first; everything else (grippers, controller/state, diagnostics,

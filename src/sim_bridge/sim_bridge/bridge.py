@@ -67,6 +67,7 @@ class SimBridge:
         self._last_valid: ActuatorCommand | None = None
         self._last_command_wall = -np.inf
         self.controller_lost = False
+        self.first_command_wait = False  # a world reset by sim/reset waits longer for its first command
         self.watchdog_active = False
         self.rejected = 0
         self.stale = 0
@@ -91,6 +92,7 @@ class SimBridge:
         self._last_valid = None
         self._last_command_wall = -np.inf
         self.controller_lost = False
+        self.first_command_wait = False
         self.watchdog_active = False
         self.ticks = 0
         self._next_summary_ns = 0
@@ -173,6 +175,7 @@ class SimBridge:
         awaited = self.awaited_stamp_ns
         if answered:
             cmd = self._pending
+            self.first_command_wait = False
             if self.controller_lost:
                 self.controller_lost = False
                 self._diag(OK, "controller", f"controller back at t = {self.stamp_ns * 1e-9:.3f} s",
@@ -193,9 +196,20 @@ class SimBridge:
             self._pending, self._early = self._early, None  # the answer to the stamp now awaited
         return state
 
+    def await_first_command(self) -> None:
+        """After a sim/reset: the new world's first tick waits lockstep.reset_wait_s for its command
+        when that is longer than command_timeout_s (the climb graph's controller is activated once
+        its plan exists), then the usual bounds apply."""
+        self.first_command_wait = True
+
     def wait_budget(self) -> float:
         """[s] wall time to wait for this tick's command."""
-        return self.params.lockstep.lost_retry_s if self.controller_lost else self.params.lockstep.command_timeout_s
+        lock = self.params.lockstep
+        if self.controller_lost:
+            return lock.lost_retry_s
+        if self.first_command_wait:
+            return max(lock.reset_wait_s, lock.command_timeout_s)
+        return lock.command_timeout_s
 
     # -- real time ------------------------------------------------------------------------------
     def step_realtime(self, wall_time: float | None = None) -> SimState:

@@ -50,6 +50,11 @@ class LockstepParams:
                                 description="wall time waited per tick once the controller is lost")
     startup_wait_s: float = param(10.0, unit="s", min=0.0, description="wall time to wait at start-up for a "
                                   "controller (a joint_command publisher and a joint_states subscriber)")
+    reset_wait_s: float = param(0.0, unit="s", min=0.0, description="wall time a world just reset by "
+                                "sim/reset waits for its first command before the controller is declared "
+                                "lost, when longer than command_timeout_s (config/graph.yaml: 600 s, the "
+                                "climb coordinator activates the controller once the first plan exists and "
+                                "the world stays at t = 0 meanwhile; 0: command_timeout_s)")
     command_delay_ticks: int = param(0, unit="-", choices=(0, 1), description="actuation latency in control "
                                      "ticks: 0 applies the command stamped t over [t, t + T) (the bridge waits "
                                      "for it); 1 applies it over [t + T, t + 2T) like a robot whose command "

@@ -209,6 +209,7 @@ class SimBridgeNode(Node):
             self.get_logger().error(f"sim/reset refused: {err}")
             return response
         self._make_ft_publishers()
+        self.bridge.await_first_command()
         self._restart = True
         self._clock_stamp_ns = -1  # time restarts: publish /clock = 0 again with the new state
         self._next_contacts_ns = 0
