@@ -206,9 +206,39 @@ def run_node(factory: Callable[[], Any], args: list[str] | None = None, *, execu
             code = 1
     finally:
         _STOP.set()  # worker threads and custom loops see the end
-        _teardown(nodes, ex)
+        _teardown_with_deadline(nodes, ex, code)
     _exit_if_threads_remain(code)
     return code
+
+
+#: [s] wall time the teardown (executor shutdown, node destruction, rclpy shutdown) may take after
+#: a signal or the end of the loop before the process ends anyway
+TEARDOWN_DEADLINE_S = 10.0
+
+
+def _teardown_with_deadline(nodes: Sequence[Any], executor, code: int) -> None:
+    """:func:`_teardown`, bounded: a teardown stuck past TEARDOWN_DEADLINE_S (measured twice on
+    contact_search after SIGINT, idle, in make test: not exited after 20-30 s, cause not found)
+    ends the process with ``code`` and one line on stderr, so that a signal always stops a node."""
+    done = threading.Event()
+
+    def deadline() -> None:
+        if not done.wait(TEARDOWN_DEADLINE_S):
+            print(f"shutdown: teardown not finished after {TEARDOWN_DEADLINE_S:.0f} s: exiting", file=sys.stderr)
+            for stream in (sys.stdout, sys.stderr):
+                try:
+                    stream.flush()
+                except (OSError, ValueError):
+                    pass
+            os._exit(code)
+
+    guard = threading.Thread(target=deadline, name="teardown_deadline", daemon=True)
+    guard.start()
+    try:
+        _teardown(nodes, executor)
+    finally:
+        done.set()
+        guard.join(1.0)  # gone at once: not a thread left running for _exit_if_threads_remain
 
 
 def _exit_if_threads_remain(code: int) -> None:
