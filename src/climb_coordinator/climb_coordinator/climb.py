@@ -243,7 +243,8 @@ class InProcessExecutor:
         duration = plan_duration(plan)
         snap_times = list(np.linspace(0.0, duration + cs.settle_time_s, req.snapshots)) if req.snapshots else []
         self.cones = cones = {limb: [] for limb in LIMBS}  # limb -> (normal [N], tangential [N], mu [-])
-        surface_mu = {name: float(s.friction) for name, s in backend.env.surfaces.items()}
+        self.cone_use = cone_use = judge.ConeUse({name: float(s.friction) for name, s in backend.env.surfaces.items()},
+                                                 cs.cone_force_min)
         tick = [0]
         current = [-1]
         bag = self.bag
@@ -265,8 +266,8 @@ class InProcessExecutor:
                 grasped = {h for h, s in sim_state.grasps.items() if s}
                 for limb in LIMBS:
                     load = log.loads[limb][-1]
-                    if load is not None and limb not in grasped and load[0] >= cs.cone_force_min:
-                        cones[limb].append((load[0], load[1], surface_mu.get(load[2], float("nan"))))
+                    if load is not None and cone_use.add(limb, load[0], load[1], load[2], limb in grasped):
+                        cones[limb].append((load[0], load[1], cone_use.surface_mu[load[2]]))
             if bag is not None and k % bag_every == 0:
                 bag.write(sim_state, output)
             if snap_times and sim_state.time >= snap_times[0]:
@@ -320,8 +321,7 @@ class InProcessExecutor:
             "wall_time_s": round(out.wall_time_s, 2),
             "real_time_factor": round(sim_time / out.wall_time_s, 3) if out.wall_time_s > 0 else 0.0,
             # largest tangential / (mu normal) of each unilateral contact over the run (cone: <= 1)
-            "max_cone_use": {limb: round(max((t / (mu * n) for n, t, mu in v), default=0.0), 3)
-                             for limb, v in self.cones.items() if v},
+            "max_cone_use": self.cone_use.summary(),
         }
         if self.req.mode == "compliance":
             r["motor_trips"] = sorted(self.runner.log.tripped)

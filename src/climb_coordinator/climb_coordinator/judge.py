@@ -77,14 +77,16 @@ class ConeUse:
         self.max_use: dict[str, float] = {}
         self.samples = 0
 
-    def add(self, limb: str, normal: float, tangential: float, surface: str, grasped: bool) -> None:
+    def add(self, limb: str, normal: float, tangential: float, surface: str, grasped: bool) -> bool:
+        """One load [N] of ``limb`` on ``surface``; True when it was judged."""
         mu = self.surface_mu.get(surface)
         if grasped or not mu or normal < self.force_min:
-            return
+            return False
         use = tangential / (mu * normal)
         if use > self.max_use.get(limb, -1.0):
             self.max_use[limb] = use
         self.samples += 1
+        return True
 
     def add_contacts(self, msg) -> None:
         """One climb_msgs/SimContacts."""

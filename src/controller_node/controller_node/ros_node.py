@@ -477,21 +477,19 @@ class ControllerNode(LifecycleNode):
                      values={"field": getattr(err, "field", "whole_body_plan"), "rule": getattr(err, "rule", str(err)),
                              "request_id": request_id})
             return
-        if not self.active or self._reset_pending:  # started after the activation's reset
+        when = ""
+        if not self.active or self._reset_pending:  # started right after the activation's reset
             self._plan_at_activation = plan
-            text = f"accepted whole_body_plan: {len(plan.transitions)} transitions (starts at activation)"
-            self.get_logger().info(text)
-            diagnose(self, "controller/plan", text, level=0,
-                     values={"request_id": request_id, "transitions": len(plan.transitions)})
-            return
-        try:
-            self.controller.set_plan(plan)
-        except PlanRefused as err:
-            self.get_logger().error(f"rejected whole_body_plan: {err}")
-            diagnose(self, "controller/plan", f"rejected whole_body_plan: {err}", level=2,
-                     values={"field": "whole_body_plan", "rule": "busy", "request_id": request_id})
-            return
-        text = f"accepted whole_body_plan: {len(plan.transitions)} transitions"
+            when = " (starts at activation)"
+        else:
+            try:
+                self.controller.set_plan(plan)
+            except PlanRefused as err:
+                self.get_logger().error(f"rejected whole_body_plan: {err}")
+                diagnose(self, "controller/plan", f"rejected whole_body_plan: {err}", level=2,
+                         values={"field": "whole_body_plan", "rule": "busy", "request_id": request_id})
+                return
+        text = f"accepted whole_body_plan: {len(plan.transitions)} transitions{when}"
         self.get_logger().info(text)
         diagnose(self, "controller/plan", text, level=0,
                  values={"request_id": request_id, "transitions": len(plan.transitions)})

@@ -225,12 +225,7 @@ def _teardown_with_deadline(nodes: Sequence[Any], executor, code: int) -> None:
     def deadline() -> None:
         if not done.wait(TEARDOWN_DEADLINE_S):
             print(f"shutdown: teardown not finished after {TEARDOWN_DEADLINE_S:.0f} s: exiting", file=sys.stderr)
-            for stream in (sys.stdout, sys.stderr):
-                try:
-                    stream.flush()
-                except (OSError, ValueError):
-                    pass
-            os._exit(code)
+            _flush_and_exit(code)
 
     guard = threading.Thread(target=deadline, name="teardown_deadline", daemon=True)
     guard.start()
@@ -247,8 +242,12 @@ def _exit_if_threads_remain(code: int) -> None:
     abort, exit -6 (measured on guide_path signalled mid-planning), or joined forever. The nodes
     are destroyed and the context is shut down by now: end the process here, streams flushed."""
     others = [t for t in threading.enumerate() if t is not threading.main_thread() and t.is_alive()]
-    if not others:
-        return
+    if others:
+        _flush_and_exit(code)
+
+
+def _flush_and_exit(code: int) -> None:
+    """End the process now (no finalization, no thread joined), stdout and stderr flushed."""
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
