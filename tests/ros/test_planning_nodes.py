@@ -58,7 +58,11 @@ def test_node_yaml_files_hold_the_code_defaults():
     ({"seed": -1}, "request.seed"), ({"timeout_s": 0}, "request.timeout_s"), ({"descend": "yes"}, "request.descend"),
     ({"strategy": "dfs"}, "request.strategy"), ({"robot": "../g1"}, "request.robot"),
     ({"start": {"q": [0.0]}}, "request.start"), ({"start": {"q": [float("nan")], "stance": {}}}, "request.start.q"),
-    ({"mode": "qp"}, "request.mode"), ({"rungs": 10 ** 9}, "request.rungs"), ({"seed": 2 ** 64}, "request.seed")])
+    ({"mode": "qp"}, "request.mode"), ({"rungs": 10 ** 9}, "request.rungs"), ({"seed": 2 ** 64}, "request.seed"),
+    ({"surface_offsets": [0.0, 0.0, 0.03]}, "request.surface_offsets"),
+    ({"surface_offsets": {"rung_2": [0.0, 0.03]}}, "request.surface_offsets.rung_2"),
+    ({"surface_offsets": {"rung_2": [0.0, 0.0, float("inf")]}}, "request.surface_offsets.rung_2"),
+    ({"surface_offsets": {"rung_2": [0.0, 0.0, 5.0]}}, "request.surface_offsets.rung_2")])
 def test_plan_requests_are_checked_field_by_field(change, field):
     from climb_core.errors import SpecError
     from planner_node.pipeline import parse_plan_request
@@ -85,6 +89,24 @@ def test_a_request_never_makes_a_node_read_a_file_and_more_rungs_than_the_ladder
     problem = load_problem(parse_plan_request(json.dumps(dict(REQUEST, rungs=8))), stage_settings())
     _, _, steps = seed_sequence(problem)
     assert {h.limb: h.env_surface for h in steps[-1].stance.holds}["left_foot"] == "rung_8"
+
+
+def test_surface_offsets_move_the_planners_model_of_a_request():
+    """A replan's request carries where execution found surfaces: every stage's problem has them
+    moved; an unknown surface is refused by name."""
+    from climb_core.errors import SpecError
+    from planner_node.node_params import stage_settings
+    from planner_node.pipeline import load_problem, parse_plan_request
+
+    nominal = load_problem(parse_plan_request(json.dumps(REQUEST)), stage_settings()).env
+    moved = load_problem(parse_plan_request(json.dumps(dict(REQUEST, surface_offsets={"rung_2": [0.0, 0.0, 0.03]}))),
+                         stage_settings()).env
+    assert moved.surfaces["rung_2"].position - nominal.surfaces["rung_2"].position == pytest.approx([0, 0, 0.03])
+    assert moved.surfaces["rung_3"].position == pytest.approx(nominal.surfaces["rung_3"].position)
+    with pytest.raises(SpecError) as err:
+        load_problem(parse_plan_request(json.dumps(dict(REQUEST, surface_offsets={"rung_99": [0, 0, 0.01]}))),
+                     stage_settings())
+    assert err.value.field == "request.surface_offsets.rung_99"
 
 
 def test_a_ladder_the_library_cannot_hold_fails_the_guide_path_with_the_constraint():

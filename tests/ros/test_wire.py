@@ -137,17 +137,26 @@ def test_controller_state_writer_is_byte_exact():
         ("transfer", "qp", 7, ("left_foot", "right_foot", "left_hand"), ("com", "posture", "right_hand"),
          (0.5, 0.25, 0.125), 2, 0.2, 0.9, 4),
     ]
-    for k, (fsm, mode, index, contacts, names, errors, status, solve, tick, failures) in enumerate(ticks):
+    # replan_needed after a placement found rung_2 2.8 cm higher than planned: why, where
+    replan = [("contact_offset", "rung_2", (0.0, 0.001, 0.028)), ("contact_offset", "rung_2", (0.0, 0.0, -0.031)),
+              ("no_contact", "", (0.0, 0.0, 0.0))]
+    ticks += [("replan_needed", "qp", 15, ("left_foot", "right_foot", "left_hand", "right_hand"), ("com", "posture"),
+               (1e-3, 2e-3), 0, 0.1, 0.8, 0) + r for r in replan]
+    for k, tick_args in enumerate(ticks):
+        fsm, mode, index, contacts, names, errors, status, solve, tick, failures = tick_args[:10]
+        reason, surface, offset = tick_args[10:] if len(tick_args) > 10 else ("", "", (0.0, 0.0, 0.0))
         stamp = STAMP_NS + k * 5_000_000
         msg = ControllerState(fsm_state=fsm, mode=mode, transition_index=index, active_contacts=list(contacts),
                               task_names=list(names), task_errors=list(errors), qp_status=status,
-                              qp_solve_time_ms=solve, tick_time_ms=tick, qp_failures=failures)
+                              qp_solve_time_ms=solve, tick_time_ms=tick, qp_failures=failures,
+                              replan_reason=reason, offset_surface=surface, surface_offset=list(offset))
         msg.header.stamp = Time(sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000)
-        got = writer.payload(stamp, fsm, mode, index, contacts, names, np.array(errors), status, solve, tick, failures)
+        got = writer.payload(stamp, fsm, mode, index, contacts, names, np.array(errors), status, solve, tick, failures,
+                             reason, surface, offset)
         assert len(got) == len(serialize_message(msg)), f"tick {k}"
         back = deserialize_message(got, ControllerState)
         assert back == msg, f"tick {k} ({fsm}): {back} != {msg}"
-    assert len(writer._layouts) == 3  # the first layout was reused
+    assert len(writer._layouts) == 5  # the first layout and the contact_offset one were reused
 
 
 def test_reader_rejects_other_encodings_and_truncated_bytes():

@@ -31,7 +31,7 @@ class GenericPlanSource:
         self.psettings = psettings
         self.result = None
 
-    def plan(self, steps: int, start=None):
+    def plan(self, steps: int, start=None, surface_offsets=None):
         from climb_coordinator.climb import clip_plan_to_limits
         from climb_coordinator.session import PlanOutcome
         from climb_coordinator.settings import load_climb_settings

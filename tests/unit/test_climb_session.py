@@ -25,9 +25,11 @@ class Plans:
     def __init__(self, outcomes):
         self.outcomes = list(outcomes)
         self.calls = []
+        self.starts = []
 
-    def plan(self, steps, start=None):
+    def plan(self, steps, start=None, surface_offsets=None):
         self.calls.append((steps, start is not None))
+        self.starts.append((start, surface_offsets))
         return self.outcomes.pop(0)
 
 
@@ -83,6 +85,42 @@ def test_replan_needed_replans_from_the_measured_state_bounded():
     assert not s["success"] and "replan_needed" in s["failure_reason"]
     assert s["transitions_done"] == 2 + 1 and s["n_transitions"] == 2 + 3
     assert s["plan_time_s"] == 3.0
+
+
+def _held_plan(n: int) -> WholeBodyPlan:
+    """n foot placements on rung_1, rung_2, ...: transition i's target stance has the left foot on rung_{i+1}."""
+    from climb_core.contact import ContactPoint, Hold
+
+    def stance(k):
+        return Stance((Hold("left_foot", "left_sole", f"rung_{k}", (ContactPoint([0.4, 0.0, 0.25 * k], [0, 0, 1]),),
+                            0.5),), name=f"s{k}")
+    t = [Transition(f"p{i}", "left_foot", stance(i), stance(i + 1), np.array([0.0, 1.0]), np.zeros((2, 7)))
+         for i in range(n)]
+    return WholeBodyPlan("g1", "default", [], stance(0), t)
+
+
+def test_a_contact_found_off_the_plan_replans_from_the_loaded_stance_in_the_corrected_model():
+    """replan_needed (contact_offset) after transition 1 loaded rung_2 found 3 cm high: the replan
+    starts from that transition's target stance with the hold moved up, the planner's model gets
+    rung_2's offset (accumulated over replans), and the completed transition counts as done."""
+    plans = Plans([PlanOutcome(True, _held_plan(4), 1.0, 5), PlanOutcome(True, _held_plan(2), 1.0, 3),
+                   PlanOutcome(True, _held_plan(2), 1.0, 3)])
+    ex = Executor([ExecStatus(5.0, "replan_needed", 1, replan_reason="contact_offset",
+                              surface_offset=("rung_2", (0.0, 0.0, 0.03))),
+                   ExecStatus(7.0, "replan_needed", 0, replan_reason="contact_offset",
+                              surface_offset=("rung_2", (0.0, 0.0, -0.004))),
+                   ExecStatus(9.0, "hold", 1)])
+    s = ClimbSession(ClimbRequest(rungs=2, max_forced_replans=2), Settings(), plans, ex, Judge(2)).run()
+    assert s["success"], s["failure_reason"]
+    assert [r["why"] for r in s["replans"]] == ["contact_offset", "contact_offset"]
+    assert s["replans"][0]["surface_offset"] == {"rung_2": [0.0, 0.0, 0.03]}
+    (start, offsets) = plans.starts[1]
+    q, stance = start
+    assert stance.name == "s2" and stance.hold("left_foot").env_surface == "rung_2"
+    assert stance.hold("left_foot").points[0].position == pytest.approx([0.4, 0.0, 0.53])
+    assert offsets == {"rung_2": [0.0, 0.0, 0.03]}
+    assert plans.starts[2][1] == {"rung_2": [0.0, 0.0, pytest.approx(0.026)]}  # accumulated
+    assert s["transitions_done"] == 2 + 1 + 1  # 2 of plan 1 (1 completed), 1 of plan 2, 1 of plan 3
 
 
 def test_a_fault_or_a_fall_stops_without_replanning():

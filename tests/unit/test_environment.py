@@ -267,3 +267,28 @@ def test_ground_extent_constant_is_used():
 def test_parse_then_build_a_minimal_spec():
     env = build_environment(parse_scenario({"ladder": {"n_rungs": 2}}))
     assert set(env.surfaces) == {"ground", "rung_1", "rung_2", "stringer_left", "stringer_right"}
+
+
+def test_surface_offsets_move_surfaces_their_collision_objects_and_the_holds_on_them():
+    """The replanner's corrected model: a surface found 3 cm higher is moved (its collision object
+    too), the others stay, the nominal environment is untouched; a stance's holds on it move."""
+    from climb_core.contact import ContactPoint, Hold, Stance
+
+    env = build_environment("default")
+    moved = env.with_surface_offsets({"rung_2": [0.0, 0.0, 0.03]})
+    assert moved.surfaces["rung_2"].position - env.surfaces["rung_2"].position == pytest.approx([0.0, 0.0, 0.03])
+    assert moved.surfaces["rung_2"].top_z == pytest.approx(env.surfaces["rung_2"].top_z + 0.03)
+    assert moved.surfaces["rung_3"].position == pytest.approx(env.surfaces["rung_3"].position)
+    objects = {name: tf for name, _, tf in moved.collision_objects()}
+    assert objects["rung_2"].getTranslation() == pytest.approx(moved.surfaces["rung_2"].T_world_primitive()[:3, 3])
+    assert env.surfaces["rung_2"].position[2] == pytest.approx(build_environment("default").surfaces["rung_2"].position[2])
+    for bad, rule in (({"rung_99": [0, 0, 0.01]}, "no surface"), ({"rung_2": [0, 0.01]}, "3 finite numbers"),
+                      ({"rung_2": [0, 0, float("nan")]}, "3 finite numbers")):
+        with pytest.raises(SpecError, match=rule) as err:
+            env.with_surface_offsets(bad)
+        assert err.value.field == f"surface_offsets.{next(iter(bad))}"
+    foot = Hold("left_foot", "left_sole", "rung_2", (ContactPoint([0.5, 0.1, 0.5], [0, 0, 1]),), 0.25)
+    hand = Hold("left_hand", "left_grasp", "rung_6", (ContactPoint([0.6, 0.1, 1.5], [0, 0, 1]),), 0.25)
+    stance = Stance((foot, hand), name="s").with_surface_offsets({"rung_2": np.array([0.0, 0.0, 0.03])})
+    assert stance.hold("left_foot").points[0].position == pytest.approx([0.5, 0.1, 0.53])
+    assert stance.hold("left_hand") == hand and stance.name == "s"

@@ -153,6 +153,60 @@ def test_hand_transfer_runs_remove_then_add_contact_states_and_stops_on_ft_conta
     assert stop == pytest.approx(offset, abs=0.006)  # [m] the hand stopped where the spring is
 
 
+@pytest.mark.parametrize("offset", [-0.03, 0.03])
+def test_a_contact_found_off_the_plan_is_loaded_then_held_for_a_replan(ladder, offset):
+    """The rung is 3 cm before / past the planned grasp (beyond guarded.replan_offset = 2 cm): the
+    hand closes and loads where the F/T found it, the transition counts as done, and the FSM holds
+    in replan_needed (reason contact_offset) with the surface's measured offset."""
+    robot, env, stance, q, transition = ladder
+    params = load_controller_params(**{"collision.enabled": False, "guarded.replan_offset": 0.02})
+    controller = Controller(robot, params, env)
+    loop = KinematicLoop(controller, q)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    # (a second transition follows: at a plan's last one an offset leaves nothing to replan)
+    controller.set_plan(plan_of(robot, env, stance, [transition, transition]))
+    T_target = robot.T_world_surface("right_hand", transition.path[-1])
+    approach = T_target[:3, 2]
+    loop.contact_plane = (T_target[:3, 3] + offset * approach, approach)
+    states = []
+    for _ in range(1600):
+        out = loop.step()
+        if not states or states[-1] != out.status.fsm_state:
+            states.append(out.status.fsm_state)
+        if out.status.fsm_state in ("hold", "failure", "replan_needed"):
+            break
+    assert states[-3:] == ["close_gripper", "load", "replan_needed"], states
+    assert out.status.replan_needed and controller.replan_reason == "contact_offset"
+    assert "right_hand" in controller.contacts and controller.holds["right_hand"].env_surface == "rung_6"
+    limb, surface, moved, distance = controller.placement_offset
+    assert (limb, surface) == ("right_hand", "rung_6")
+    assert distance == pytest.approx(offset, abs=0.008)  # [m] signed, along the approach
+    assert moved == pytest.approx(distance * controller._approach["right_hand"], abs=1e-9)
+    (event,) = controller.events_of("replan_needed")
+    assert event.values["reason"] == "contact_offset"
+    # a new plan is taken from there (the session replans from the transition's target stance)
+    controller.set_plan(plan_of(robot, env, stance, []))
+    assert controller.replan_reason == ""
+
+
+def test_a_contact_found_within_the_bound_goes_on_with_the_plan(ladder):
+    robot, env, stance, q, transition = ladder
+    params = load_controller_params(**{"collision.enabled": False, "guarded.replan_offset": 0.02})
+    controller = Controller(robot, params, env)
+    loop = KinematicLoop(controller, q)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    controller.set_plan(plan_of(robot, env, stance, [transition]))
+    T_target = robot.T_world_surface("right_hand", transition.path[-1])
+    loop.contact_plane = (T_target[:3, 3] - 0.01 * T_target[:3, 2], T_target[:3, 2])
+    for _ in range(1600):
+        out = loop.step()
+        if out.status.fsm_state in ("hold", "failure", "replan_needed"):
+            break
+    assert out.status.fsm_state == "hold" and not controller.events_of("replan_needed")
+    (event,) = controller.events_of("contact_offset")
+    assert event.values["surface"] == "rung_6" and event.values["distance"] == pytest.approx(-0.01, abs=0.006)
+
+
 def test_search_gives_up_and_asks_for_replanning_without_contact(ladder):
     robot, env, stance, q, transition = ladder
     params = load_controller_params(**{"collision.enabled": False, "guarded.search_distance": 0.02})
@@ -165,6 +219,7 @@ def test_search_gives_up_and_asks_for_replanning_without_contact(ladder):
         if out.status.fsm_state in ("hold", "replan_needed", "failure"):
             break
     assert out.status.fsm_state == "replan_needed" and out.status.replan_needed
+    assert controller.replan_reason == "no_contact"
     assert "right_hand" not in controller.contacts  # never added without a contact
 
 

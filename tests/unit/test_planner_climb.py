@@ -99,3 +99,35 @@ def test_replanning_from_the_reached_state_continues_the_climb(g1, env, planned)
     assert res.subtasks[0] == "com_to_right_foot"  # straight into a climbing cycle
     assert np.allclose(res.plan.transitions[0].path[0], last.path[-1])
     assert all(limb_rung(res.final_state.stance, f) == STEPS + 1 for f in FEET)
+
+
+def test_the_sequence_from_a_stance_in_the_middle_of_a_cycle_finishes_that_cycle_first(g1, env, planned):
+    """A replan right after a placement found its rung off the plan starts mid-cycle: after each
+    placement of the planned climb's second cycle, the sequence resumes exactly where the plan went
+    on, and the feet end ``steps`` rungs above the stance's lower foot."""
+    from planner_node.climb_planner import subtask_sequence
+    from planner_node.primitives import load_library
+
+    plan, _ = planned
+    settings = load_settings().planning
+    library = load_library("g1", settings.strategy, settings.primitives_dir, nq=g1.model.nq)
+    cycle = list(library.sequences["cycle"])
+    start = len(plan.transitions) - len(cycle)  # the second cycle's first transition
+    checked = 0
+    for j in range(1, len(cycle)):
+        if not library.primitives[cycle[j - 1]].is_limb:
+            continue  # a CoM shift leaves the stance as it was
+        stance = plan.transitions[start + j - 1].target_stance
+        lower = min(limb_rung(stance, f) for f in FEET)
+        for steps in (STEPS - lower, STEPS - lower + 1):
+            rungs = {limb: limb_rung(stance, limb) for limb in FEET}
+            seq = [library.primitives[p] for p in (x.name for x in subtask_sequence(library, stance, steps, env))]
+            assert [p.name for p in seq[:len(cycle) - j]] == cycle[j:], (j, [p.name for p in seq])
+            for p in seq:  # the feet end `steps` above the lower foot
+                if p.is_limb and p.limb in FEET:
+                    rungs[p.limb] += 1
+            assert rungs == {f: lower + steps for f in FEET}, (j, steps, rungs)
+        checked += 1
+    assert checked == 3  # after each foot and the first hand (after the second: a boundary)
+    boundary = plan.transitions[start - 1].target_stance
+    assert [p.name for p in subtask_sequence(library, boundary, 1, env)] == cycle

@@ -103,25 +103,29 @@ class LibraryPlanSource:
         self.req, self.robot, self.env, self.library = req, robot, env, library
         self.psettings, self.cs = psettings, cs
 
-    def plan(self, steps: int, start=None) -> PlanOutcome:
-        from climb_core.errors import InfeasibleError
+    def plan(self, steps: int, start=None, surface_offsets=None) -> PlanOutcome:
+        from climb_core.errors import ClimbError, InfeasibleError
         from planner_node.climb_planner import plan_climb
         from planner_node.replan import measured_start
 
         req = self.req
+        env = self.env.with_surface_offsets(surface_offsets) if surface_offsets else self.env
         projection = None
         if start is None:
-            res = plan(req, self.robot, self.env, self.library, self.psettings, steps)
+            res = plan(req, self.robot, env, self.library, self.psettings, steps)
         else:
             q, stance = start
             t0 = time.perf_counter()
             try:
-                q0 = measured_start(self.robot, self.env, q, stance, self.psettings)
+                q0 = measured_start(self.robot, env, q, stance, self.psettings)
             except InfeasibleError as exc:
                 return PlanOutcome(False, None, time.perf_counter() - t0, failure=f"start: {exc}")
             projection = float(np.linalg.norm(q0[:3] - np.asarray(q)[:3])) * 1e3
-            res = plan_climb(self.robot, self.env, steps, start=(q0, stance), library=self.library,
-                             settings=self.psettings, seed=req.seed, timeout_s=req.plan_timeout_s)
+            try:
+                res = plan_climb(self.robot, env, steps, start=(q0, stance), library=self.library,
+                                 settings=self.psettings, seed=req.seed, timeout_s=req.plan_timeout_s)
+            except ClimbError as exc:  # a start the primitives cannot continue from: said, not raised
+                return PlanOutcome(False, None, time.perf_counter() - t0, failure=str(exc))
         ok = bool(res.success and res.plan is not None)
         return PlanOutcome(ok, clip_plan_to_limits(res.plan, self.robot, self.cs.plan_joint_limit_margin) if ok
                            else res.plan, res.plan_time_s, res.n_stances,
@@ -138,7 +142,7 @@ class SearchPlanSource:
         self.req, self.robot, self.env, self.psettings, self.cs = req, robot, env, psettings, cs
         self.start_posture = start_posture
 
-    def plan(self, steps: int, start=None) -> PlanOutcome:
+    def plan(self, steps: int, start=None, surface_offsets=None) -> PlanOutcome:
         from climb_core import fixtures
         from climb_core.errors import ClimbError
         from planner_node import pipeline
@@ -157,7 +161,8 @@ class SearchPlanSource:
                                        rungs=target, seed=self.req.seed, timeout_s=self.req.plan_timeout_s,
                                        strategy="search",
                                        start={"q": np.asarray(q, float).tolist(), "stance": stance_to_dict(stance)})
-        problem = pipeline.Problem(request, self.robot, self.env.scenario, self.env, None, self.psettings,
+        env = self.env.with_surface_offsets(surface_offsets) if surface_offsets else self.env
+        problem = pipeline.Problem(request, self.robot, self.env.scenario, env, None, self.psettings,
                                    start=(np.asarray(q, float), stance))
         stages: dict[str, float] = {}
         try:
@@ -288,8 +293,13 @@ class InProcessExecutor:
 
     def _status(self) -> ExecStatus:
         s, c = self.runner.sim_state, self.controller
+        offset = None
+        if c.fsm.state == "replan_needed" and c.replan_reason == "contact_offset" and c.placement_offset is not None:
+            offset = (c.placement_offset[1], tuple(float(x) for x in c.placement_offset[2]))
         return ExecStatus(sim_time_s=float(s.time), fsm_state=c.fsm.state, transition_index=int(c.transition_index),
-                          fell=bool(s.fell), fall_reason=s.fall_reason, qp_failures=int(c.qp_failures))
+                          fell=bool(s.fell), fall_reason=s.fall_reason, qp_failures=int(c.qp_failures),
+                          replan_reason=c.replan_reason if c.fsm.state == "replan_needed" else "",
+                          surface_offset=offset)
 
     def run(self, budget_s: float, stop: tuple[str, ...]) -> ExecStatus:
         c = self.controller

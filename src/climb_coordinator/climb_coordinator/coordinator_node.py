@@ -808,7 +808,7 @@ def _make_node():
             self.node, self.run, self.scenario = node, run, scenario
             self.attempt = 0
 
-        def plan(self, steps: int, start=None) -> PlanOutcome:
+        def plan(self, steps: int, start=None, surface_offsets=None) -> PlanOutcome:
             from msgs_py.contact import whole_body_plan_from_msg
             from planner_node.plan_io import stance_to_dict
 
@@ -825,6 +825,8 @@ def _make_node():
             if start is not None:
                 q, stance = start
                 request["start"] = {"q": [float(x) for x in q], "stance": stance_to_dict(stance)}
+            if surface_offsets:  # where execution found surfaces: every stage plans in that model
+                request["surface_offsets"] = {k: [float(x) for x in v] for k, v in surface_offsets.items()}
             t0 = time.monotonic()
             safe_publish(node.pub_plan_request, String(data=json.dumps(request)))
             from planner_node.settings import load_settings
@@ -920,6 +922,10 @@ def _make_node():
             fell = bool(c.fell) if c is not None else False
             s = ExecStatus(sim_time_s=t, fsm_state=st.fsm_state, transition_index=int(st.transition_index),
                            fell=fell, fall_reason=c.fall_reason if fell else "", qp_failures=int(st.qp_failures))
+            if st.fsm_state == "replan_needed":
+                s.replan_reason = st.replan_reason
+                if st.replan_reason == "contact_offset" and st.offset_surface:
+                    s.surface_offset = (st.offset_surface, tuple(float(x) for x in st.surface_offset))
             self.last = s
             return s
 

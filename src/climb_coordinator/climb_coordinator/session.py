@@ -177,10 +177,17 @@ class ExecStatus:
     fault: str = ""  # why the run stopped otherwise: "cancelled", "dead node: controller ...", ...
     cancelled: bool = False
     qp_failures: int = 0
+    replan_reason: str = ""  # replan_needed: contact_offset | no_contact (controller FSM)
+    #: contact_offset: (surface, world translation [m]) of the surface the last placement found
+    #: off the plan (where it is minus where the plan had it)
+    surface_offset: tuple[str, tuple[float, float, float]] | None = None
 
 
 class PlanSource(Protocol):
-    def plan(self, steps: int, start: tuple[np.ndarray, Stance] | None = None) -> PlanOutcome: ...
+    def plan(self, steps: int, start: tuple[np.ndarray, Stance] | None = None,
+             surface_offsets: dict[str, list[float]] | None = None) -> PlanOutcome:
+        """``surface_offsets``: surface name -> world translation [m] found during the execution
+        (the planner's model moves those surfaces; ``start``'s stance is already moved)."""
 
 
 class Executor(Protocol):
@@ -208,14 +215,18 @@ def rungs_reached(feet: dict[str, int | None]) -> int:
     return int(values[0])
 
 
-def replan_stance(plan: WholeBodyPlan, index: int) -> Stance:
-    """The stance to replan from after ``replan_needed`` at transition ``index``: the stance the
-    transition started from (the previous transition's target; the moving limb on the hold it
-    was lifted from, where the measured state is projected back: a limb whose search ended
-    inside the nominal surface it missed cannot start a plan there)."""
+def replan_stance(plan: WholeBodyPlan, index: int, done: bool = False) -> Stance:
+    """The stance to replan from after ``replan_needed`` at transition ``index``. ``done`` (the
+    transition completed: its placement loaded a contact found off the plan): its target stance.
+    Otherwise (a search that found nothing) the stance the transition started from (the previous
+    transition's target; the moving limb on the hold it was lifted from, where the measured state
+    is projected back: a limb whose search ended inside the nominal surface it missed cannot
+    start a plan there)."""
     if not plan.transitions:
         return plan.initial_stance
-    index = min(max(index, 0), len(plan.transitions))
+    index = min(max(index, 0), len(plan.transitions) - (1 if done else 0))
+    if done:
+        return plan.transitions[index].target_stance
     return plan.transitions[index - 1].target_stance if index > 0 else plan.initial_stance
 
 
@@ -247,6 +258,9 @@ class ClimbSession:
         self.active: list[WholeBodyPlan] = []  # every plan executed, in order
         self.done_before = 0  # transitions of the plans before the current one
         self.replans: list[dict] = []
+        #: surface -> world translation [m]: where execution found surfaces against the nominal
+        #: model (accumulated over replans; every replan plans in the corrected model)
+        self.surface_offsets: dict[str, np.ndarray] = {}
         self._prefix: list = []  # transitions executed of the plans before the current one
         self.top_feet: dict = {}
         self.n_up: int | None = None  # descend: first transition of the descent
@@ -280,7 +294,8 @@ class ClimbSession:
 
     # ------------------------------------------------------------------ the run
     def _plan(self, steps: int, start=None) -> PlanOutcome:
-        out = self.plans.plan(steps, start)
+        offsets = {k: [round(float(x), 6) for x in v] for k, v in self.surface_offsets.items()}
+        out = self.plans.plan(steps, start, offsets or None)
         self.plan_time_s += float(out.plan_time_s)
         return out
 
@@ -328,12 +343,24 @@ class ClimbSession:
             elif (status.fsm_state == "replan_needed" and not req.descend and req.max_transitions is None
                   and forced < req.max_forced_replans):
                 forced += 1
-                stance = replan_stance(self.current, status.transition_index)
-                k = max(1, req.rungs - stance_feet_rung(stance))
-                record = {"cycles": k, "reason": "replan_needed",
+                done = status.replan_reason == "contact_offset"
+                stance = replan_stance(self.current, status.transition_index, done)
+                record = {"reason": "replan_needed", "why": status.replan_reason or "no_contact",
                           "transition": self.done_before + max(status.transition_index, 0)}
-                self.say(f"replan_needed at transition {record['transition'] + 1}: replanning {k} cycle(s) "
-                         f"from the measured state (attempt {forced} of {req.max_forced_replans})")
+                if done and status.surface_offset is not None:
+                    # the placement loaded its contact where the surface really is: the stance's
+                    # holds on it and the planner's model move there
+                    surface, offset = status.surface_offset
+                    d = np.asarray(offset, dtype=float)
+                    stance = stance.with_surface_offsets({surface: d})
+                    self.surface_offsets[surface] = self.surface_offsets.get(surface, np.zeros(3)) + d
+                    record["surface_offset"] = {surface: [round(float(x), 4) for x in d]}
+                # rungs still to climb above the stance's lower foot (0: the planner only finishes the
+                # cycle under way, e.g. the hands after both feet reached the top rung)
+                k = max(0 if done else 1, req.rungs - stance_feet_rung(stance))
+                record["cycles"] = k
+                self.say(f"replan_needed ({record['why']}) at transition {record['transition'] + 1}: replanning "
+                         f"{k} cycle(s) from the measured state (attempt {forced} of {req.max_forced_replans})")
             else:
                 break
             self.on_phase("replanning", f"{record['reason']}: {k} cycle(s)")
@@ -350,7 +377,10 @@ class ClimbSession:
                 cycles += k
             else:
                 cycles = req.rungs
-            done = len(self.current.transitions) if record["reason"] == "plan_cycles" else max(status.transition_index, 0)
+            if record["reason"] == "plan_cycles":
+                done = len(self.current.transitions)
+            else:  # the transition that loaded an off-plan contact was completed
+                done = max(status.transition_index, 0) + (1 if record["why"] == "contact_offset" else 0)
             self._prefix.extend(self.current.transitions[:done])
             self.done_before += done
             self.active.append(nxt.plan)

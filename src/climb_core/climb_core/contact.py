@@ -9,7 +9,8 @@ contacts between one robot contact surface and one environment surface:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -101,6 +102,18 @@ class Stance:
 
     def with_hold(self, hold: Hold) -> "Stance":
         return Stance(tuple(h for h in self.holds if h.limb != hold.limb) + (hold,), name=self.name)
+
+    def with_surface_offsets(self, offsets: dict[str, Any]) -> "Stance":
+        """The holds on surfaces of ``offsets`` (name -> world translation [m], see
+        ``Environment.with_surface_offsets``) moved with their surface; the others as they are."""
+        holds = []
+        for h in self.holds:
+            d = offsets.get(h.env_surface)
+            if d is not None:
+                d = np.asarray(d, dtype=float)
+                h = replace(h, points=tuple(replace(p, position=np.asarray(p.position, float) + d) for p in h.points))
+            holds.append(h)
+        return Stance(tuple(holds), name=self.name)
 
 
 @dataclass

@@ -76,7 +76,7 @@ by rails_dy along L y. Drops are dynamic objects, thrown by the simulator, not b
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -306,6 +306,23 @@ class Environment:
         cz, sz = math.cos(half), math.sin(half)  # q_yaw * q
         out[3:7] = (cz * qx - sz * qy, cz * qy + sz * qx, cz * qz + sz * qw, cz * qw - sz * qz)
         return out
+
+    def with_surface_offsets(self, offsets: dict[str, Any]) -> "Environment":
+        """A copy with surfaces translated (world [m]): ``offsets`` maps a surface name to where the
+        surface was found minus where this model has it (a rung a guarded move touched early or
+        late). The planner replans in that model; the scenario (and its spec) stay as they were.
+        SpecError naming the surface when it is unknown or its offset is not 3 finite numbers."""
+        surfaces = dict(self.surfaces)
+        for name, offset in offsets.items():
+            if name not in surfaces:
+                raise SpecError(f"surface_offsets.{name}", f"no surface {name!r} in scenario {self.name!r}")
+            d = np.asarray(offset, dtype=float)
+            if d.shape != (3,) or not np.all(np.isfinite(d)):
+                raise SpecError(f"surface_offsets.{name}", "must be 3 finite numbers [m] (world x, y, z)")
+            T = np.array(surfaces[name].T_world_surface)
+            T[:3, 3] += d
+            surfaces[name] = replace(surfaces[name], T_world_surface=T)
+        return Environment(self.scenario, surfaces, self.perturbed, self.T_world_ladder)
 
     def contact_surfaces(self, limb_type: str) -> list[Surface]:
         """The surfaces a limb of type ``limb_type`` ("foot" or "hand") may be placed on, in build order."""

@@ -185,6 +185,10 @@ class Controller:
         self._disabled_key: tuple | None = None
         self._disabled_cache: frozenset[tuple[str, str]] = frozenset()
         self.replan_needed = False
+        self.replan_reason = ""  # why the FSM is in replan_needed: contact_offset | no_contact
+        #: the last placement's surface offset: (limb, surface, world translation [m] of the surface
+        #: from where the plan had it, along the approach; signed distance [m], < 0 early)
+        self.placement_offset: tuple[str, str, np.ndarray, float] | None = None
         # F/T
         self._ft_filtered: dict[str, np.ndarray] = {}
         self._ft_tare: dict[str, np.ndarray] = {}
@@ -252,6 +256,8 @@ class Controller:
         self.transition_index = -1
         self.moving_limb = ""
         self.replan_needed = False
+        self.replan_reason = ""
+        self.placement_offset = None
         self.fallback_active = False
         self._qdd_held = None
         self.guard_off.clear()
@@ -270,6 +276,7 @@ class Controller:
         self.transition_index = -1
         self.transition = None
         self.replan_needed = False  # idle / hold / replan_needed raise `plan` on their next run
+        self.replan_reason = ""
 
     def hold_plan(self) -> str:
         """Abandon the plan now and hold the active contacts where they are (an external cancel):
@@ -580,9 +587,36 @@ class Controller:
 
     def add_contact(self, limb: str) -> None:
         """The moving limb's planned hold, moved to where the limb actually is (rung offsets)."""
+        self._measure_placement_offset(limb)
         hold = self._hold_at_actual_pose(limb)
         self._activate(limb, hold, engage=True)
         self.set_guard(limb, hold.env_surface, True)
+
+    def _measure_placement_offset(self, limb: str) -> None:
+        """Where the guarded move found the target surface against the plan: the limb's contact
+        surface now minus at the end of its planned path, along the approach direction (event
+        ``contact_offset``; ``placement_offset``). Nothing without a path (a plan starting with
+        the limb free) or an approach direction."""
+        a = self._approach.get(limb)
+        if self.reference is None or a is None or self.transition is None:
+            self.placement_offset = None
+            return
+        planned = self.transition.target_stance.hold(limb)
+        _, T_plan = self._reference_quantities(self.reference.end, limb)
+        T_now = self.contact_body_tasks[limb].current(self.wb.view)
+        d = float(a @ (T_now.translation - T_plan.translation))
+        offset = d * a
+        surface = planned.env_surface if planned is not None else self.target_surface
+        self.placement_offset = (limb, surface, offset, d)
+        self.emit("contact_offset", limb=limb, surface=surface, distance=d, offset=offset.tolist())
+
+    def contact_off_plan(self, limb: str) -> bool:
+        """The limb's placement found its surface farther than ``guarded.replan_offset`` from where
+        the plan has it (early or late): the plan's next poses assume the planned surface. Not at
+        the plan's last transition (no pose of the plan comes after it)."""
+        p = self.placement_offset
+        last = self.plan is None or self.transition_index >= len(self.plan.transitions) - 1
+        return p is not None and p[0] == limb and abs(p[3]) > self.params.guarded.replan_offset and not last
 
     def contact_ready(self, limb: str) -> bool:
         ramp = self.ramps.get(limb)

@@ -128,6 +128,7 @@ class Context(Protocol):
     target_surface: str  # the environment surface the moving limb goes to
     plan_pending: bool  # a new plan arrived
     replan_needed: bool
+    replan_reason: str  # set by the state that raises the event leading to replan_needed
     contact_body_tasks: dict  # limb -> FrameTask
 
     def next_transition(self) -> Transition | None: ...
@@ -142,6 +143,7 @@ class Context(Protocol):
     def remove_contact(self, limb: str) -> None: ...
     def add_contact(self, limb: str) -> None: ...
     def contact_ready(self, limb: str) -> bool: ...
+    def contact_off_plan(self, limb: str) -> bool: ...
     def gripper(self, hand: str, command: str, position: float = 0.0) -> None: ...
     def tare_ft(self, limb: str) -> None: ...
     def ft_force_change(self, limb: str) -> float: ...
@@ -197,7 +199,7 @@ class ReplanNeededState(IdleState):
     def start(self, ctx: Context) -> None:
         ctx.hold_here()
         ctx.replan_needed = True
-        ctx.emit("replan_needed", limb=ctx.moving_limb)
+        ctx.emit("replan_needed", limb=ctx.moving_limb, reason=ctx.replan_reason)
 
 
 class SelectState(State):
@@ -325,6 +327,7 @@ class SearchState(State):
             return "contact"
         if self.travelled >= g.search_distance:
             ctx.freeze_limb()
+            ctx.replan_reason = "no_contact"
             return "exhausted"
         step = g.approach_speed * ctx.params.control_period_s
         self.travelled += step
@@ -344,8 +347,12 @@ class CloseGripperState(State):
 
 
 class LoadState(State):
+    """The new contact joins with a force ramp. A placement that found its surface off the plan
+    beyond ``guarded.replan_offset`` ends in ``off_plan`` once loaded (the transition is done; the
+    plan's next poses assume the planned surface, so the robot holds and a replan follows)."""
+
     name = "load"
-    events = ("loaded",)
+    events = ("loaded", "off_plan")
 
     def start(self, ctx: Context) -> None:
         ctx.add_contact(ctx.moving_limb)
@@ -353,6 +360,9 @@ class LoadState(State):
     def run(self, ctx: Context) -> str | None:
         if ctx.contact_ready(ctx.moving_limb):
             ctx.finish_transition()
+            if ctx.contact_off_plan(ctx.moving_limb):
+                ctx.replan_reason = "contact_offset"
+                return "off_plan"
             return "loaded"
         return None
 

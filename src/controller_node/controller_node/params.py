@@ -144,6 +144,11 @@ class GuardedParams:
                                               "once the approach begins")
     search_distance: float = param(0.05, unit="m", min=0.0,
                                    description="max extra travel before reporting that replanning is needed")
+    replan_offset: float = param(0.025, unit="m", min=0.0,
+                                 description="a placement that found its surface farther than this from the "
+                                             "plan (early or late, along the approach) loads the contact, then "
+                                             "holds and asks for a replan in the corrected model "
+                                             "(replan_needed, reason contact_offset)")
     filter_time_constant_s: float = param(0.01, unit="s", min=0.0, description="first-order filter on the F/T force")
     approach_arm_fraction: float = param(0.0, unit="-", min=0.0, max=1.0,
                                          description="contact checks start this far into the last path segment "

@@ -590,9 +590,16 @@ class ControllerNode(LifecycleNode):
 
     def _publish_state(self, out, stamp: int) -> None:
         s = out.status  # serialized from a template per FSM state / contact set (msgs_py.cdr)
+        reason, surface, offset = "", "", (0.0, 0.0, 0.0)
+        if s.fsm_state == "replan_needed":  # why, and where the surface was found (contact_offset)
+            c = self.controller
+            reason = c.replan_reason
+            if reason == "contact_offset" and c.placement_offset is not None:
+                surface, offset = c.placement_offset[1], tuple(float(x) for x in c.placement_offset[2])
         self.pub_state.publish(self._state_writer.payload(
             stamp, s.fsm_state, s.mode, int(s.transition_index), s.active_contacts, s.task_names, s.task_errors,
-            _QP_STATUS[s.qp_status], float(s.qp_solve_time_ms), float(s.tick_time_ms), int(s.qp_failures)))
+            _QP_STATUS[s.qp_status], float(s.qp_solve_time_ms), float(s.tick_time_ms), int(s.qp_failures),
+            reason, surface, offset))
 
     def latency_stats(self) -> dict[str, float]:
         out = {}

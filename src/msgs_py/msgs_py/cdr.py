@@ -293,10 +293,10 @@ _U8 = struct.Struct("<B")
 class ControllerStateWriter:
     """climb_msgs/ControllerState from templates, one per layout.
 
-    Its strings (FSM state, mode, active contacts, task names) change only when the FSM or the
-    contact set does, so each distinct set is serialized once by ``serialize(msg)`` (rclpy's own
-    serialization) and reused: per tick the stamp, the transition index, the task errors, the QP
-    status and the times are written in place."""
+    Its strings (FSM state, mode, active contacts, task names, replan reason, offset surface)
+    change only when the FSM or the contact set does, so each distinct set is serialized once by
+    ``serialize(msg)`` (rclpy's own serialization) and reused: per tick the stamp, the transition
+    index, the task errors, the QP status, the times and the surface offset are written in place."""
 
     _LIMIT = 256  # layouts kept (a run sees a few dozen)
 
@@ -307,8 +307,9 @@ class ControllerStateWriter:
 
     def payload(self, stamp_ns: int, fsm_state: str, mode: str, transition_index: int,
                 active_contacts: tuple[str, ...], task_names: tuple[str, ...], task_errors,
-                qp_status: int, qp_solve_time_ms: float, tick_time_ms: float, qp_failures: int) -> bytes:
-        key = (fsm_state, mode, tuple(active_contacts), tuple(task_names))
+                qp_status: int, qp_solve_time_ms: float, tick_time_ms: float, qp_failures: int,
+                replan_reason: str = "", offset_surface: str = "", surface_offset=(0.0, 0.0, 0.0)) -> bytes:
+        key = (fsm_state, mode, tuple(active_contacts), tuple(task_names), replan_reason, offset_surface)
         layout = self._layouts.get(key)
         if layout is None:
             layout = self._layouts[key] = self._layout(key)
@@ -321,11 +322,13 @@ class ControllerStateWriter:
         _U8.pack_into(buffer, at["qp_status"], qp_status)
         _F64_PAIR.pack_into(buffer, at["qp_solve_time_ms"], qp_solve_time_ms, tick_time_ms)
         _U32.pack_into(buffer, at["qp_failures"], qp_failures)
+        _F64_TRIPLE.pack_into(buffer, at["surface_offset"], *surface_offset)
         return bytes(buffer)
 
     def _layout(self, key: tuple) -> tuple[bytearray, dict[str, int], np.ndarray]:
-        fsm_state, mode, contacts, names = key
-        msg = self._type(fsm_state=fsm_state, mode=mode, active_contacts=list(contacts), task_names=list(names))
+        fsm_state, mode, contacts, names, reason, surface = key
+        msg = self._type(fsm_state=fsm_state, mode=mode, active_contacts=list(contacts), task_names=list(names),
+                         replan_reason=reason, offset_surface=surface)
         msg.task_errors = [0.0] * len(names)
         buffer = bytearray(self._serialize(msg))
         r = Reader(bytes(buffer))
@@ -341,7 +344,11 @@ class ControllerStateWriter:
         if r.scalar(8) != at["qp_solve_time_ms"] + 8:  # tick_time_ms right after: written as a pair
             raise CdrError("ControllerState: qp_solve_time_ms and tick_time_ms are not adjacent")
         at["qp_failures"] = r.scalar(4)
+        r.string()
+        r.string()
+        at["surface_offset"] = r.doubles(3)[0]
         return buffer, at, np.frombuffer(buffer, dtype="<f8", count=n, offset=errors_at)
 
 
 _F64_PAIR = struct.Struct("<dd")
+_F64_TRIPLE = struct.Struct("<ddd")

@@ -68,8 +68,14 @@ def plan_duration(plan: WholeBodyPlan) -> float:
     return float(sum(t.times[-1] for t in plan.transitions if len(t.times)))
 
 
-def subtask_sequence(library: PrimitiveLibrary, stance: Stance, steps: int) -> list[Primitive]:
-    """Primitives to go from ``stance`` through ``steps`` climbing cycles."""
+def subtask_sequence(library: PrimitiveLibrary, stance: Stance, steps: int, env: Any = None) -> list[Primitive]:
+    """Primitives to go from ``stance`` through ``steps`` climbing cycles.
+
+    From a stance in the middle of a cycle (a replan right after a placement that found its rung
+    off the plan: one foot a rung above the other, or both feet up and the hands still below
+    their rung, or one hand up; ``env`` tells the hands' rung), the rest of that cycle comes
+    first and ``steps`` counts the feet's rungs: the feet end ``steps`` rungs above the lower
+    foot of ``stance``."""
     if steps < 0:
         raise SpecError("steps", f"must be >= 0, got {steps}")
     feet = [limb_rung(stance, f) for f in FEET]
@@ -86,14 +92,58 @@ def subtask_sequence(library: PrimitiveLibrary, stance: Stance, steps: int) -> l
         seq += library.sequence("mount")
     elif not hands_on:
         raise SpecError("start.stance", "on the ladder both hands must hold a rung")
-    if min(feet) != max(feet):
-        raise SpecError("start.stance", "both feet must be on the same rung (a cycle boundary)")
-    for k in range(steps):
+    cycles = steps
+    if hands_on:
+        rest = _rest_of_cycle(library, stance, feet, hands, env)
+        seq += rest
+        if any(p.is_limb and p.limb in FEET and limb_rung(stance, p.limb) == min(feet) for p in rest):
+            cycles -= 1  # the rest of the cycle brings the lower foot up one rung
+    for k in range(max(cycles, 0)):
         if on_ground and k == 0 and "first_cycle" in library.sequences:
             seq += library.sequence("first_cycle")
         else:
             seq += library.sequence("cycle")
     return seq
+
+
+def _rest_of_cycle(library: PrimitiveLibrary, stance: Stance, feet: list, hands: list, env: Any) -> list[Primitive]:
+    """The primitives of the library's cycle still to run from ``stance`` ([] at a cycle boundary).
+
+    The limbs already moved in this cycle: the higher foot when the feet differ; both feet when
+    they are level on a rung and the hands below the rung of the rule ``above_feet`` (``env``);
+    the higher hand (and both feet) when the hands differ. The rest starts right after the
+    cycle's prefix that moved exactly those limbs (its CoM shift included)."""
+    cycle = library.sequence("cycle")
+    moved: set[str] = set()
+    if feet[0] != feet[1]:
+        moved.add(FEET[int(feet[1] > feet[0])])
+    elif hands[0] != hands[1]:
+        moved.update(FEET)
+    elif env is not None and feet[0] > 0 and hands[0] < _hands_rung(library, stance, env):
+        moved.update(FEET)  # (on the ground the hands hold the mount rung: a cycle boundary)
+    if hands[0] != hands[1]:
+        if feet[0] != feet[1]:
+            raise SpecError("start.stance", f"feet on rungs {feet} and hands on rungs {hands}: not a stance "
+                                            "of the climbing cycle")
+        moved.add(HANDS[int(hands[1] > hands[0])])
+    if not moved:
+        return []
+    placed: set[str] = set()
+    for j, prim in enumerate(cycle):
+        if placed == moved:
+            return list(cycle[j:])
+        if prim.is_limb:
+            placed.add(prim.limb)
+    raise SpecError("start.stance", f"feet on rungs {feet} and hands on rungs {hands}: no point of the cycle "
+                                    f"{[p.name for p in cycle]} has moved exactly {sorted(moved)}")
+
+
+def _hands_rung(library: PrimitiveLibrary, stance: Stance, env: Any) -> int:
+    """The rung the cycle's hands go to over the stance's feet (the ``above_feet`` rule of
+    :func:`planner_node.adapt.target_rung`, attempt 0)."""
+    zs = [h.centre[2] for h in stance.holds if h.limb in FEET]
+    tops = np.array([env.surfaces[f"rung_{k}"].top_z for k in range(1, env.n_rungs + 1)])
+    return int(np.argmin(np.abs(tops - (float(np.mean(zs)) + library.hands_above_feet_height)))) + 1
 
 
 def plan_climb(robot: Any, env: Any, steps: int, *, library: PrimitiveLibrary | None = None,
@@ -133,7 +183,7 @@ def plan_climb(robot: Any, env: Any, steps: int, *, library: PrimitiveLibrary | 
     # the nearest library's own sequences when it has a whole climb (a partial variant may lack its
     # mount): otherwise the main library's
     own = all(library.sequences.get(k) for k in ("mount", "cycle"))
-    subtasks = subtask_sequence(library if own else main, stance0, steps)
+    subtasks = subtask_sequence(library if own else main, stance0, steps, env)
     state0 = ClimbState(np.asarray(q0, dtype=float).copy(), stance0)
     per_variant = max(1, p.attempts_per_variant)
 

@@ -51,7 +51,8 @@ from .settings import PlannerSettings
 #: generic contact-body path)
 STRATEGIES = ("primitives", "search")
 IMPLEMENTED_STRATEGIES = ("primitives", "search")
-REQUEST_FIELDS = ("id", "robot", "scenario", "rungs", "seed", "timeout_s", "descend", "strategy", "start")
+REQUEST_FIELDS = ("id", "robot", "scenario", "rungs", "seed", "timeout_s", "descend", "strategy", "start",
+                  "surface_offsets")
 #: a request is a small JSON document (a spec's YAML text and a start configuration fit easily)
 MAX_REQUEST_CHARS = 1_000_000
 #: no ladder has more rungs (climb_core.ladder's range of ladder.n_rungs)
@@ -73,6 +74,9 @@ class PlanRequest:
     descend: bool = False  # climb `rungs` rungs, then climb back down
     strategy: str | None = None  # primitives | search (None: the node's parameter)
     start: dict | None = None  # {"q": [...], "stance": {...}} (plan_io conventions) or None
+    #: surface name -> [x, y, z] world translation [m] of a surface found off the scenario's
+    #: model during execution (a replan plans with those surfaces moved)
+    surface_offsets: dict | None = None
     text: str = ""  # the request verbatim
 
     def effective_strategy(self, default: str) -> str:
@@ -125,7 +129,10 @@ def parse_plan_request(text: Any) -> PlanRequest:
         raise SpecError("request.scenario", "must be a ladder name of config/ladders/ or the spec's YAML text")
     if "rungs" not in data:
         raise SpecError("request.rungs", "is required (climbing cycles: the feet end on rung `rungs`)")
-    rungs = _int(data, "rungs", 2, 1, MAX_RUNGS)
+    rungs = _int(data, "rungs", 2, 0, MAX_RUNGS)
+    if rungs == 0 and data.get("start") is None:
+        raise SpecError("request.rungs", "must be >= 1 (0 only with a `start` in the middle of a cycle: "
+                                         "the rest of that cycle)")
     seed = _int(data, "seed", None, 0, 2 ** 63 - 1)
     timeout = data.get("timeout_s")
     if timeout is not None:
@@ -152,8 +159,18 @@ def parse_plan_request(text: Any) -> PlanRequest:
     if descend and start is not None:
         raise SpecError("request.descend", "a climb and back down is planned from the start fixture, not "
                                            "from a measured `start`")
+    offsets = data.get("surface_offsets")
+    if offsets is not None:
+        if not isinstance(offsets, dict):
+            raise SpecError("request.surface_offsets", "must be null or an object: surface name -> [x, y, z] [m]")
+        for name, d in offsets.items():
+            if not isinstance(d, list) or len(d) != 3 or not all(
+                    isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and abs(x) <= 1.0
+                    for x in d):
+                raise SpecError(f"request.surface_offsets.{name}"[:200],
+                                "must be 3 finite numbers [m] (world x, y, z), each within +-1 m")
     return PlanRequest(id=rid, robot=robot, scenario=scenario, rungs=rungs, seed=seed, timeout_s=timeout,
-                       descend=descend, strategy=strategy, start=start, text=text)
+                       descend=descend, strategy=strategy, start=start, surface_offsets=offsets, text=text)
 
 
 def check_strategy(strategy: str, stage: str = "") -> None:
@@ -232,6 +249,11 @@ def load_problem(request: PlanRequest, settings: PlannerSettings) -> Problem:
         env = build_environment(scenario)
     except SpecError as exc:
         raise SpecError(f"request.scenario.{exc.field}", exc.rule) from None
+    if request.surface_offsets:
+        try:
+            env = env.with_surface_offsets(request.surface_offsets)
+        except SpecError as exc:
+            raise SpecError(f"request.{exc.field}", exc.rule) from None
     p = settings.planning
     library = load_library(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
     start = None
@@ -316,7 +338,7 @@ def seed_sequence(problem: Problem) -> tuple[np.ndarray, Stance, list[SeedStep]]
     q0, stance0 = start_state(problem)
     lib = problem.library
     ctx = AdaptContext(problem.robot, problem.env, lib, problem.settings)
-    subtasks = subtask_sequence(lib, stance0, problem.request.rungs)
+    subtasks = subtask_sequence(lib, stance0, problem.request.rungs, problem.env)
     rng = np.random.default_rng(0)  # attempt 0 draws nothing
     state = ClimbState(q0, stance0)
     steps: list[SeedStep] = []

@@ -5,7 +5,10 @@ A measured configuration is a few millimetres off the planner's contact manifold
 holds the contacts where the F/T found them, the estimator has its own noise), so it is first
 projected onto the stance's contact constraints (:class:`planner_node.adapt.ContactProjector`,
 minimum-norm Gauss-Newton steps) and re-checked with the planner's feasibility check; the plan then
-starts there.
+starts there. A measured state the check refuses (a knee resting against the rung above after a
+foot found its rung higher than planned: inside the planner's collision margin) is repaired by the
+physics-constrained IK on the same stance, seeded and pulled toward it; the controller blends the
+difference out along the plan's first transition.
 """
 from __future__ import annotations
 
@@ -16,6 +19,7 @@ import numpy as np
 from climb_core.contact import Stance
 from climb_core.errors import InfeasibleError
 
+from . import pcik
 from .adapt import AdaptContext, ContactProjector, failure_name
 from .climb_planner import ClimbPlanResult, plan_climb
 from .settings import PlannerSettings, load_settings
@@ -45,9 +49,26 @@ def measured_start(robot: Any, env: Any, q_measured: np.ndarray, stance: Stance,
         raise InfeasibleError("start_projection", f"the measured base is {moved:.3f} m from the stance's "
                                                   f"contact manifold (at most {max_base_projection} m)")
     res = ctx.check(q_proj, stance)
-    if not res.feasible:
-        raise InfeasibleError(failure_name(res), "the measured state is not a feasible start")
-    return q_proj
+    if res.feasible:
+        return q_proj
+    repaired = _repair(ctx, q_proj, stance)
+    if repaired is None or float(np.linalg.norm(repaired[:3] - q[:3])) > max_base_projection:
+        raise InfeasibleError(failure_name(res), "the measured state is not a feasible start (and the "
+                                                 "IK found none within reach of it)")
+    return repaired
+
+
+def _repair(ctx: AdaptContext, q: np.ndarray, stance: Stance) -> np.ndarray | None:
+    """The nearest feasible configuration on ``stance`` the physics-constrained IK finds from
+    ``q`` (seeded and pulled toward it), projected and checked; None when there is none."""
+    pr = pcik.solve(ctx.robot, ctx.env, q, stance, q_target=q, params=ctx.settings.pcik,
+                    feasibility_cfg=ctx.check_cfg, self_margin=ctx.settings.planning.self_collision_margin)
+    if not pr.success:
+        return None
+    q_c = ContactProjector(ctx, stance, pr.q)(pr.q)
+    if q_c is None or not ctx.check(q_c, stance).feasible:
+        return None
+    return q_c
 
 
 def plan_from_measured(robot: Any, env: Any, q_measured: np.ndarray, stance: Stance, steps: int,
