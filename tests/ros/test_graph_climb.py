@@ -8,9 +8,9 @@ One graph per climb (a class-scoped fixture; the graph stops when its class is d
   2 cores); bad requests refused at once before it, a second request refused while it runs;
 - 2 rungs in compliance mode through the `climb` service, followed on climb/status (with the same
   one-period actuation latency);
-- a forced replan (rung 4 moved by sim/perturb under a plan made for the nominal ladder: the
-  hand's guarded search finds nothing, the FSM reports replan_needed, the coordinator replans from
-  the measured state, counted in the result);
+- a replan after a contact found off the plan (the simulator's rung 1 3 cm higher than the
+  planners' ladder: the left foot meets it early, the FSM holds in replan_needed, the coordinator
+  replans in the corrected model through every planning node, and the climb completes);
 - a cancel mid-climb (the robot holds >= 10 s of sim time with its contacts unchanged, nothing
   falls), then a second climb on the same graph (it executes on the reset simulator);
 - SIGKILL of the controller mid-climb (the coordinator reports the dead node within 2 s, the
@@ -356,43 +356,42 @@ class TestComplianceClimbThroughTheService:
 # ------------------------------------------------------------------------------ replan, cancel
 
 
-class TestForcedReplan:
-    """A 1-rung climb planned on the nominal ladder; rung 4 (the mount) moved 12 cm away from the
-    robot in the simulator: the left hand's guarded search is exhausted (replan_needed); the
-    coordinator replans from the measured state (max_forced_replans 1), counted in the result.
-    The planner refuses that start today (the hand ended its search inside the nominal rung; a
-    limb projected back to its previous hold moves the base more than its 5 cm bound), so the
-    climb ends with the reason; a replan the planner accepts is executed (session unit tests; the
-    plan_cycles replans of tests/sim/test_climb_variants.py)."""
+class TestReplanAfterAContactOffThePlan:
+    """A 1-rung climb planned on the nominal ladder while the simulator's rung 1 is 3 cm higher
+    (the request's scenario text: its perturbation block moves the simulator's rung only). The left
+    foot's guarded approach meets rung 1 early; the controller loads it there and holds in
+    replan_needed (reason contact_offset, on controller/state with the surface and its offset);
+    the coordinator replans from the measured state with rung 1 moved where the foot found it,
+    through every planning node, and the climb completes on the real rung."""
 
     @pytest.fixture(scope="class")
     def run(self, tmp_path_factory):
-        from climb_msgs.srv import SimPerturb
+        import yaml
 
         out = tmp_path_factory.mktemp("graph_replan")
+        spec = yaml.safe_load((ROOT / "config" / "ladders" / "default.yaml").read_text())
+        spec["perturbation"] = {"rung_offsets": [{"rung": 1, "dx": 0.0, "dz": 0.03}]}
         with Graph(out, extra={"climb_coordinator": {"max_forced_replans": 1}}) as g:
             c = g.client
-            t0 = time.monotonic()
-            handle = c.send_goal(rungs=1, controller_mode="qp", scenario="default")
-            c.wait_for(c.executing_since(0.1, t0), 900.0, "the first plan executing", running_since=t0)
-            moved = c.perturb(kind=SimPerturb.Request.RUNG_OFFSET, rung=4, dx=0.12, dz=0.0)
-            assert moved.success, moved.error
+            handle = c.send_goal(rungs=1, controller_mode="qp", scenario=yaml.safe_dump(spec), robot="g1")
             result = c.result(handle)
             with c.lock:
                 saw_replan_needed = any(s[2] == "replan_needed" for s in c.states)
-            yield {"result": result, "summary": json.loads(result.summary_json), "saw": saw_replan_needed}
+            yield {"result": result, "summary": json.loads(result.summary_json), "saw": saw_replan_needed,
+                   "client": c}
 
-    def test_forced_replan_counted_in_the_result(self, run):
+    def test_the_climb_is_replanned_in_the_corrected_model_and_completes(self, run):
         s, r = run["summary"], run["result"]
         assert run["saw"], "the FSM never reported replan_needed"
-        assert r.replans == len(s["replans"]) == 1, s
+        _check_success(s, 1, run["client"])
+        assert r.success and r.replans == len(s["replans"]) == 1, s
         replan = s["replans"][0]
-        assert replan["reason"] == "replan_needed" and replan["cycles"] == 1
-        assert replan["transition"] >= 5  # the mount (after the 5 approach transitions)
-        if "failure_reason" in replan:  # the planner refused the measured start: said why
-            assert replan["failure_reason"].startswith("plan: ") and "start" in replan["failure_reason"]
-            assert not r.success and "replanning (replan_needed)" in r.failure_reason
-        assert s["fell"] is False and not r.fell
+        assert replan["reason"] == "replan_needed" and replan["why"] == "contact_offset", replan
+        assert "failure_reason" not in replan
+        (surface, offset), = replan["surface_offset"].items()
+        assert surface == "rung_1" and offset[2] == pytest.approx(0.03, abs=0.005)
+        assert replan["transition"] >= 7  # the first foot placement on the ladder (5 approach + 2 mount)
+        assert s["transitions_done"] == s["n_transitions"]
 
 
 class TestCancelMidClimb:
