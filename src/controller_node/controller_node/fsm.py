@@ -312,7 +312,6 @@ class SearchState(State):
 
     def start(self, ctx: Context) -> None:
         self.travelled = 0.0
-        self.ended_at: float | None = None  # [s] when the target's creep reached search_distance
         ctx.contact_body_tasks[ctx.moving_limb].stiffness = ctx.params.guarded.search_stiffness
         ctx.emit("search_started", limb=ctx.moving_limb)
 
@@ -327,11 +326,6 @@ class SearchState(State):
                      extra_travel=self.travelled)
             return "contact"
         if self.travelled >= g.search_distance:
-            # the limb lags its target: it gets search_settle_s to catch up (F/T still watched)
-            if self.ended_at is None:
-                self.ended_at = ctx.time
-            if ctx.time - self.ended_at < g.search_settle_s:
-                return None
             ctx.freeze_limb()
             ctx.replan_reason = "no_contact"
             return "exhausted"

@@ -144,10 +144,6 @@ class GuardedParams:
                                               "once the approach begins")
     search_distance: float = param(0.05, unit="m", min=0.0,
                                    description="max extra travel before reporting that replanning is needed")
-    search_settle_s: float = param(0.3, unit="s", min=0.0,
-                                   description="after the search's target has crept search_distance, the F/T is "
-                                               "still watched this long (the limb lags its target) before "
-                                               "replan_needed")
     replan_offset: float = param(0.025, unit="m", min=0.0,
                                  description="a placement that found its surface farther than this from the "
                                              "plan (early or late, along the approach) loads the contact, then "
