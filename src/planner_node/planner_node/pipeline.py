@@ -129,10 +129,8 @@ def parse_plan_request(text: Any) -> PlanRequest:
         raise SpecError("request.scenario", "must be a ladder name of config/ladders/ or the spec's YAML text")
     if "rungs" not in data:
         raise SpecError("request.rungs", "is required (climbing cycles: the feet end on rung `rungs`)")
-    rungs = _int(data, "rungs", 2, 0, MAX_RUNGS)
-    if rungs == 0 and data.get("start") is None:
-        raise SpecError("request.rungs", "must be >= 1 (0 only with a `start` in the middle of a cycle: "
-                                         "the rest of that cycle)")
+    # 0 only from a measured `start` in the middle of a cycle: the rest of that cycle
+    rungs = _int(data, "rungs", 2, 0 if data.get("start") is not None else 1, MAX_RUNGS)
     seed = _int(data, "seed", None, 0, 2 ** 63 - 1)
     timeout = data.get("timeout_s")
     if timeout is not None:
