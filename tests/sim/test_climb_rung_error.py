@@ -1,8 +1,10 @@
 """Rung errors beyond the ladder paper's +-2 cm, executed in process: G1's 2-step climb of the
 default ladder (mount + two cycles, 21 transitions, ~106 s of sim time) with the simulator's rung 2
-moved 3 cm up / down, the planner and the controller knowing the nominal ladder. Judged on the
-simulator's ground truth with every check of an executed climb (climb_checks.check_run: no fall, no
-QP failure, loads inside their friction cones, the bag).
+moved 3 cm down, the planner and the controller knowing the nominal ladder, planned one cycle at a
+time from the reached state, with a one-period actuation latency. Judged on the simulator's ground
+truth with every check of an executed climb (climb_checks.check_run: no fall, no QP failure, loads
+inside their friction cones, the bag). Rung 2 3 cm up (the early contact) is the graph's replan
+test (tests/ros/test_graph_climb.py: the same session through every node).
 
 Measured before the recovery: at +3 cm the climb ended in a QP failure at transition 19 (the knee
 on rung 3, the right foot slipping). Now the first foot on rung 2 finds it off the plan (ankle F/T,
@@ -10,8 +12,8 @@ early / late beyond guarded.replan_offset), loads it, holds, and the climb is re
 with rung 2 where the foot found it.
 
 The nominal climb is executed through the graph (tests/ros/test_graph_climb.py: 3 rungs in QP
-mode, 2 rungs in compliance mode, judged from topics); in process the same 2-step climb runs
-here, perturbed, and in test_climb_variants.py (planned a cycle at a time, with latency)."""
+mode, 2 rungs in compliance mode, judged from topics); in process the same 2-step climb runs here,
+perturbed, and in test_climb_variants.py (a rung up and back down)."""
 from __future__ import annotations
 
 import pytest
@@ -21,13 +23,19 @@ from climb_checks import RUNGS, assert_standing_on, check_run
 pytestmark = [pytest.mark.sim, pytest.mark.heavy]
 
 
-@pytest.mark.parametrize("dz", [0.03, -0.03])
-def test_climb_with_rung_2_three_centimetres_off_replans_and_completes(dz, tmp_path):
-    """The simulator's rung 2 is 3 cm higher / lower than the ladder the planner and the controller
-    know. The left foot finds it from the ankle F/T (early contact in the planned approach / late,
-    in the search past it), loads it, and the controller holds in replan_needed; the session
-    replans from there with rung 2 moved where the foot found it, and the climb completes on the
-    real rung: the right foot then lands where the corrected plan has it."""
+def test_climb_planned_a_cycle_at_a_time_with_rung_2_three_centimetres_low_replans_and_completes(tmp_path):
+    """Partially known ladders and a rung off the plan, with a robot's one-period actuation
+    latency (every command acts one control period late; the controller computes each command
+    for the state one period ahead: ``actuation_latency_s``, set by the request).
+
+    The planner plans one cycle at a time: after the mount and the first cycle, the second is
+    planned from the configuration the simulator reached (projected onto the held stance). The
+    simulator's rung 2 is 3 cm lower than the ladder the planner and the controller know: the left
+    foot finds it late, from the ankle F/T in the search past the planned pose, loads it, and the
+    controller holds in replan_needed; the session replans from there with rung 2 moved where the
+    foot found it, and the climb completes on the real rung: the right foot then lands where the
+    corrected plan has it. (Without the latency prediction the nominal 2-step climb ends in failure
+    at transition 11 of 21 after 151 infeasible QPs, measured.)"""
     import yaml
 
     from climb_coordinator.climb import ClimbRequest, run_climb
@@ -35,10 +43,11 @@ def test_climb_with_rung_2_three_centimetres_off_replans_and_completes(dz, tmp_p
     from climb_core.ros_env import project_root
 
     spec = yaml.safe_load((project_root() / "config" / "ladders" / "default_perturbed.yaml").read_text())
+    dz = -0.03
     spec["perturbation"] = {"rung_offsets": [{"rung": 2, "dx": 0.0, "dz": dz}], "rails_dy": 0.0, "drops": []}
     settings = load_climb_settings()
-    result = run_climb(ClimbRequest(ladder=spec, robot="g1", rungs=RUNGS, mode="qp", out_dir=tmp_path, seed=0),
-                       settings)
+    result = run_climb(ClimbRequest(ladder=spec, robot="g1", rungs=RUNGS, mode="qp", out_dir=tmp_path, seed=0,
+                                    plan_cycles=1, command_delay_ticks=1), settings)
     try:
         s = result.summary
         feet, loads = check_run(result, settings, "qp")
@@ -50,18 +59,23 @@ def test_climb_with_rung_2_three_centimetres_off_replans_and_completes(dz, tmp_p
         # both feet carry the robot on rung 2 ([N] of the ~340 N weight, hands take the rest)
         assert loads["left_foot"].normal_force + loads["right_foot"].normal_force > 150.0
         assert s["grasps"] == {"left_hand": f"rung_{RUNGS + 4}", "right_hand": f"rung_{RUNGS + 4}"}
-        # one replan, after the left foot loaded rung 2, which it found within 5 mm of the truth
-        (replan,) = s["replans"]
+        assert s["command_delay_ticks"] == 1
+        assert result.controller.params.actuation_latency_s == pytest.approx(0.005)
+        # two replans: the second cycle from the reached state (a few mm off the plan), then,
+        # after the left foot loaded rung 2, which it found within 5 mm of the truth, the rest
+        cycle, replan = s["replans"]
+        assert cycle["cycles"] == 1 and "failure_reason" not in cycle and "why" not in cycle, cycle
+        assert cycle["start_projection_mm"] < 10.0
         assert replan["why"] == "contact_offset" and set(replan["surface_offset"]) == {"rung_2"}
         assert replan["surface_offset"]["rung_2"][2] == pytest.approx(dz, abs=0.005)
         c = result.controller
         (event,) = c.events_of("replan_needed")
         assert event.values == {"limb": "left_foot", "reason": "contact_offset"}
-        # the guarded moves found every contact from F/T (one per limb placement, both plans)
+        # the guarded moves found every contact from F/T (one per limb placement, every plan)
         detected = c.events_of("contact_detected")
         assert len(detected) == len([t for t in result.plan.transitions if t.moving_limb])
         feet_on_2 = [e for e in detected if e.values["limb"] in ("left_foot", "right_foot")][-2:]
-        assert feet_on_2[0].values["early"] == (dz > 0)  # the left foot: before / past the plan
+        assert feet_on_2[0].values["early"] is False  # the left foot: past the planned pose
         offsets = [e.values for e in c.events_of("contact_offset") if e.values["surface"] == "rung_2"]
         assert [o["limb"] for o in offsets] == ["left_foot", "right_foot"]
         # the right foot lands where the corrected model has rung 2 (within the FSM's own bound)

@@ -36,6 +36,16 @@ def test_bag_round_trip_standard_and_custom_types(tmp_path: pathlib.Path):
     assert list(cmds[10].modes) == [JointCommand.TORQUE, JointCommand.PWM] and cmds[10].values[0] == 15.0
     (last,) = [m.decode() for m in messages if m.topic == "controller/state"]
     assert last.fsm_state == "hold"
+    # metadata.yaml holds what the MCAP file embeds (rosbag2's "rosbag2" metadata record)
+    import yaml
+    from mcap.reader import make_reader
+
+    (mcap_file,) = bag.glob("*.mcap")
+    with open(mcap_file, "rb") as f:
+        (record,) = [m for m in make_reader(f).iter_metadata() if m.name == "rosbag2"]
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info == yaml.safe_load(record.metadata["serialized_metadata"])
+    assert info["message_count"] == 401 and len(info["topics_with_message_count"]) == 3
 
 
 def test_mcap_tools_decode_the_custom_types_without_the_project(tmp_path: pathlib.Path):

@@ -109,6 +109,36 @@ def test_disk_cache_round_trip(g1, env, tmp_path, monkeypatch):
     np.testing.assert_allclose(rebuilt.q, built.q)
 
 
+def test_writers_of_one_fixture_at_once_do_not_race(g1, env, tmp_path, monkeypatch):
+    """The planning nodes of a graph start at once and may build the same fixture: every writer
+    used one temporary file name, so one writer's rename took another's file away
+    (FileNotFoundError, a primitive_adaptation request failing with "internal error", measured
+    in a fresh clone). Each writer now has its own temporary file; the cache file is whole."""
+    import json
+    import threading
+
+    monkeypatch.setattr(fixtures, "_cache_dir", lambda: tmp_path)
+    built = fixtures.fixture("ladder_no_left_hand", g1, env)
+    errors: list[BaseException] = []
+
+    def write() -> None:
+        try:
+            for _ in range(50):
+                fixtures._save_disk(built)
+        except BaseException as err:  # noqa: BLE001 - reported below
+            errors.append(err)
+
+    threads = [threading.Thread(target=write) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    (path,) = tmp_path.glob("g1-ladder_no_left_hand-*.json")
+    assert json.loads(path.read_text())["name"] == "ladder_no_left_hand"
+    assert not list(tmp_path.glob("*.tmp")) and not list(tmp_path.glob(".*.tmp"))
+
+
 def test_romeo_wrists_carry_the_ladder_stance_g1_wrists_do_not(g1, env):
     """The same construction (feet on rung 1, hands on rung 5, one foot released) for G1 and Romeo:
     Romeo's wrists (0.6-2.2 N m) are its binding joints, G1's (5-25 N m) are far from theirs."""

@@ -34,6 +34,7 @@ import pinocchio as pin
 from . import feasibility, holds, ik
 from .contact import FEET, HANDS, LIMBS, ContactPoint, Hold, Stance
 from .errors import InfeasibleError, SpecError
+from .geometry_cache import atomic_write
 from .params import load_params, param
 
 VERSION = 1
@@ -394,9 +395,10 @@ def _save_disk(fx: StanceFixture) -> None:
     doc = {"version": VERSION, "name": fx.name, "robot": fx.robot, "scenario": fx.scenario,
            "stance": {"name": fx.stance.name, "holds": [_hold_to_json(h) for h in fx.stance.holds]},
            "q": fx.q.tolist()}
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(doc))
-    tmp.replace(path)
+    try:  # a private temporary file per writer: processes building the same fixture at once
+        atomic_write(path, json.dumps(doc))  # (the planning nodes of a graph) used to race on one
+    except OSError:  # a cache that cannot be written costs time, never the request
+        pass
 
 
 def _load_disk(name: str, key: str, robot: Any, env: Any) -> StanceFixture | None:

@@ -461,6 +461,14 @@ def _make_writer_class():
 
         STORAGE_PLUGINS = {StoragePlugin.MCAP: _LiveMcap}
 
+        def _qos_text(self, connection) -> str:
+            """The connection's offered QoS profiles as rosbag2 writes them (fixed per connection:
+            dumped once, not at every checkpoint)."""
+            cache = self.__dict__.setdefault("_qos_texts", {})
+            if connection.id not in cache:
+                cache[connection.id] = dump_qos_v9(connection.ext.offered_qos_profiles)
+            return cache[connection.id]
+
         def _metadata(self) -> dict:
             storage = self.storage
             count = sum(storage.channel_stats.values())  # messages on disk only
@@ -476,7 +484,7 @@ def _make_writer_class():
                 "topics_with_message_count": [
                     {"topic_metadata": {"name": c.topic, "type": c.msgtype,
                                         "serialization_format": c.ext.serialization_format,
-                                        "offered_qos_profiles": dump_qos_v9(c.ext.offered_qos_profiles),
+                                        "offered_qos_profiles": self._qos_text(c),
                                         "type_description_hash": c.digest},
                      "message_count": storage.channel_stats.get(c.id, 0)}
                     for c in self.connections if isinstance(c.ext, ConnectionExtRosbag2)],
@@ -494,23 +502,27 @@ def _make_writer_class():
             dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
             return yaml.dump(data, Dumper=dumper, default_flow_style=False, sort_keys=True)
 
-        def _write_metadata_yaml(self, info: dict) -> None:
+        def _write_metadata_yaml(self, text: str) -> None:
+            """metadata.yaml, atomically: ``rosbag2_bagfile_information:`` and ``text`` (the
+            information's block mapping, as the MCAP file embeds it) indented under it."""
             tmp = self.metapath.with_name(".metadata.yaml.tmp")
+            body = "".join(f"  {line}" if line else line for line in text.splitlines(keepends=True))
             with open(tmp, "w", encoding="utf8") as f:
-                f.write(self._dump({"rosbag2_bagfile_information": info}))
+                f.write(f"rosbag2_bagfile_information:\n{body}\n")
             os.replace(tmp, self.metapath)
 
         def _write(self, storage_call) -> None:
             """Checkpoint or close the storage, then metadata.yaml (atomically) describing exactly
-            what the MCAP file now holds."""
-            info: dict = {}
+            what the MCAP file now holds (one YAML dump for both: the recorder checkpoints every
+            flush_period_s, and the dump was most of its CPU)."""
+            text: list[str] = []
 
             def metadata() -> str:  # called by the storage once the pending chunk is counted
-                info.update(self._metadata())
-                return self._dump(info).strip()
+                text.append(self._dump(self._metadata()).strip())
+                return text[-1]
 
             storage_call(metadata)
-            self._write_metadata_yaml(info or self._metadata())
+            self._write_metadata_yaml(text[-1] if text else self._dump(self._metadata()).strip())
 
         def checkpoint(self) -> None:
             """Pending messages to disk, then metadata.yaml describing exactly them."""

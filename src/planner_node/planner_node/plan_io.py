@@ -17,6 +17,7 @@ import numpy as np
 
 from climb_core.contact import ContactPoint, Hold, Stance, Transition, WholeBodyPlan
 from climb_core.errors import SpecError
+from climb_core.geometry_cache import atomic_write
 
 FORMAT = "climb_whole_body_plan"
 VERSION = 1
@@ -117,9 +118,7 @@ def plan_from_dict(d: dict) -> tuple[WholeBodyPlan, dict]:
 def save_plan(path: str | pathlib.Path, plan: WholeBodyPlan, metadata: dict | None = None) -> pathlib.Path:
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(plan_to_dict(plan, metadata)))
-    tmp.replace(path)
+    atomic_write(path, json.dumps(plan_to_dict(plan, metadata)))
     return path
 
 
@@ -204,8 +203,9 @@ def cached_plan(key: str, compute) -> tuple[WholeBodyPlan | None, dict]:
             pass
     plan, meta = compute()
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps({"metadata": _jsonable(meta),
-                               "plan": None if plan is None else plan_to_dict(plan)}))
-    tmp.replace(path)
+    try:  # a private temporary file per writer (processes may plan the same request at once)
+        atomic_write(path, json.dumps({"metadata": _jsonable(meta),
+                                       "plan": None if plan is None else plan_to_dict(plan)}))
+    except OSError:  # a cache that cannot be written costs time, never the plan
+        pass
     return plan, meta

@@ -31,6 +31,7 @@ import yaml
 
 from climb_core.contact import LIMBS
 from climb_core.errors import SpecError
+from climb_core.geometry_cache import atomic_write
 
 LIBRARY_FILE = "library.yaml"
 #: extra libraries designed on other reference ladders: library_<inclination>_<spacing>.yaml
@@ -315,7 +316,5 @@ def save_library(lib: PrimitiveLibrary, folder: pathlib.Path, header: str = "", 
     }
     path = folder / file_name
     text = yaml.safe_dump(doc, sort_keys=False, width=200, default_flow_style=None)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(header + text)
-    tmp.replace(path)
+    atomic_write(path, header + text)
     return path
