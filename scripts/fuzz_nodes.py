@@ -603,9 +603,14 @@ class FuzzClient:
         raise AssertionError(f"{node} not active: {self.lifecycle_state(node)}")
 
     def node_interfaces(self, node: str) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
-        """(topic, type) of the node's subscriptions and (service, type) of its services."""
+        """(topic, type) of the node's subscriptions and (service, type) of its services, with
+        those of its helper node ``<node>_stream`` when it has one (climb_coordinator's 200 Hz
+        streams live on a node of their own, in the same process)."""
         subs = [(t, types[0]) for t, types in self.node.get_subscriber_names_and_types_by_node(node, "/")]
         srvs = [(s, types[0]) for s, types in self.node.get_service_names_and_types_by_node(node, "/")]
+        helper = f"{node}_stream"
+        if helper in self.node.get_node_names():
+            subs += [(t, types[0]) for t, types in self.node.get_subscriber_names_and_types_by_node(helper, "/")]
         return subs, srvs
 
 

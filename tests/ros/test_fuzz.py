@@ -82,10 +82,15 @@ def test_coordinator_reports_garbage_on_every_input_and_keeps_serving():
         assert client.wait_service(ListParameters, f"{node}/list_parameters", 180.0), proc.tail()
 
         def subscriptions() -> dict[str, str]:
-            try:
-                return {t: types[0] for t, types in client.node.get_subscriber_names_and_types_by_node(node, "/")}
-            except Exception:  # noqa: BLE001 - NodeNameNonExistentError: not discovered yet
-                return {}
+            """The node's subscriptions and its helper node's (the 200 Hz streams: <node>_stream)."""
+            out = {}
+            for name in (node, f"{node}_stream"):
+                try:
+                    out.update({t: types[0] for t, types in
+                                client.node.get_subscriber_names_and_types_by_node(name, "/")})
+                except Exception:  # noqa: BLE001 - NodeNameNonExistentError: not discovered yet
+                    pass
+            return out
 
         expected = {"/controller/state", "/sim/contacts", "/whole_body_plan", "/guide_path/status",
                     "/contact_search/status", "/primitive_adaptation/status"}

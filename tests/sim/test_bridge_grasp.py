@@ -138,3 +138,53 @@ def test_close_out_of_capture_range_does_not_latch(backend):
     assert state.grasps["left_hand"] == "" and state.finger_positions["left_hand"] == 1.0
     failed = [e for e in backend.drain_events() if e.kind == "grasp_failed"]
     assert failed and "rung_1 is 6.0 cm away" in failed[0].message
+
+
+def _hang_by_one_hand_tilted(backend, grip: float, ticks: int = 200):
+    """G1 latched by its left hand only, grip strength ``grip`` [N], gravity tilted 45 degrees
+    from the vertical toward (x + y) / sqrt(2): one grasp carries the whole weight along a
+    diagonal. (The last state, the grasp's linear force rows per tick [N], the hands that
+    slipped.)"""
+    import pybullet
+
+    state = backend.reset(ResetRequest(robot="g1", ladder=HIGH_BAR, q=hanging_configuration(load_robot("g1"))))
+    hold = ActuatorCommand.uniform(POSITION, state.base.q[7:].copy())
+    backend.set_grip_strength(grip)
+    backend.request_gripper(GripperRequest("left_hand", "close"))
+    g = backend.params.physics.gravity * np.array([0.5, 0.5, -np.sqrt(0.5)])
+    pybullet.setGravity(*g, physicsClientId=backend.client)
+    rows = []
+    for _ in range(ticks):
+        state = backend.step(hold)
+        if "left_hand" in backend.grasps.latched:
+            rows.append(backend.grasps.constraint_force("left_hand")[:3])
+    slips = {e.values["hand"] for e in backend.drain_events() if e.kind == "slip"}
+    return state, np.array(rows), slips
+
+
+def test_the_grip_strength_bounds_the_norm_of_a_diagonal_grasp_load(backend):
+    """Issue 19, honest limits: PyBullet caps each row of a constraint separately, so a grasp
+    whose rows were capped at the grip strength held a diagonal load up to sqrt(3) times it
+    (measured, one hand at 0.9 x the weight: held, force norm up to 1.43 x the grip strength).
+    Now the cap follows the force's direction after every physics step (grasp.norm_cap):
+    - a grip far above the weight: the grasp carries the weight, diagonally (its largest row
+      well under its norm);
+    - 0.9 x the weight (above every row of the load, below its norm): the grasp slides off, its
+      force's norm within the grip strength but for the one physics step of lag of a changing
+      direction (measured up to 1.06 x in the 99th percentile);
+    - 1.3 x the weight: it holds."""
+    weight = backend.robot.mass * backend.params.physics.gravity  # [N]
+    state, rows, slips = _hang_by_one_hand_tilted(backend, 5000.0)
+    assert not slips and state.grasps["left_hand"] == "rung_1"
+    norms = np.linalg.norm(rows, axis=1)
+    assert np.median(norms) == pytest.approx(weight, rel=0.05)
+    assert np.median(np.abs(rows).max(axis=1)) < 0.85 * np.median(norms)  # a diagonal load
+
+    grip = 0.9 * weight
+    state, rows, slips = _hang_by_one_hand_tilted(backend, grip)
+    assert slips == {"left_hand"} and state.grasps["left_hand"] == ""
+    norms = np.linalg.norm(rows, axis=1)
+    assert np.percentile(norms, 99) <= 1.08 * grip and norms.max() <= 1.15 * grip, (norms.max(), grip)
+
+    state, rows, slips = _hang_by_one_hand_tilted(backend, 1.3 * weight)
+    assert not slips and state.grasps["left_hand"] == "rung_1"

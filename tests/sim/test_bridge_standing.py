@@ -128,3 +128,45 @@ def test_base_truth_velocity_is_pinocchio_free_flyer_convention():
         assert np.linalg.norm(s1.imu.linear_acceleration) < 2.0  # vs 9.81 standing (centripetal terms remain)
     finally:
         backend.close()
+
+
+def test_ft_noise_and_bias_in_percent_of_each_sensors_range():
+    """Issue 19, sensor realism: ``sensors.ft_noise_percent`` is the white-noise sigma of every
+    F/T component in % of that sensor's range (robot config ``ft_ranges``: G1 ankles 1000 N /
+    50 N m, wrists 300 N / 10 N m); ``ft_bias_percent`` the sigma of a constant offset drawn at
+    every reset. Measured against the same standing run without them (same seed, same physics:
+    the noise does not feed back, the PD reads no F/T)."""
+    import dataclasses
+
+    from sim_bridge.params import load_bridge_params
+
+    def stand(noise: float, bias: float, seed: int = 3) -> dict[str, np.ndarray]:
+        params = load_bridge_params()
+        params = dataclasses.replace(params, sensors=dataclasses.replace(
+            params.sensors, ft_noise_percent=noise, ft_bias_percent=bias))
+        backend = PyBulletBackend(params)
+        try:
+            state = backend.reset(ResetRequest(robot="g1", ladder="default", initial_posture="standing", seed=seed))
+            ctl = GravityCompensatedPd(backend.robot, backend.robot.q_reference())
+            out = {s: [] for s in state.ft}
+            for _ in range(400):
+                state = backend.step(ctl(state))
+                for s, w in state.ft.items():
+                    out[s].append(w.as_array())
+            return {s: np.array(v) for s, v in out.items()}
+        finally:
+            backend.close()
+
+    clean, noisy, biased = stand(0.0, 0.0), stand(2.0, 0.0), stand(0.0, 1.0)
+    for sensor, (force_range, torque_range) in (("left_ankle", (1000.0, 50.0)), ("right_wrist", (300.0, 10.0))):
+        error = noisy[sensor] - clean[sensor]
+        std = error.std(axis=0)
+        np.testing.assert_allclose(std[:3], 0.02 * force_range, rtol=0.15)
+        np.testing.assert_allclose(std[3:], 0.02 * torque_range, rtol=0.15)
+        assert np.abs(error.mean(axis=0)[:3]).max() < 0.3 * 0.02 * force_range  # zero-mean
+        offset = biased[sensor] - clean[sensor]
+        assert np.abs(offset - offset[0]).max() < 1e-9  # constant over the run
+        assert 0.0 < np.abs(offset[0, :3]).max() < 4 * 0.01 * force_range
+    # another reset draws another bias
+    assert not np.allclose(stand(0.0, 1.0, seed=4)["left_ankle"][0] - clean["left_ankle"][0],
+                           biased["left_ankle"][0] - clean["left_ankle"][0])

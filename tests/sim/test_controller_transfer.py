@@ -145,3 +145,52 @@ def test_compliance_mode_hand_transfer_through_the_pwm_motor_model_without_trips
     assert max(log.max_current_ratio) < 1.0  # every motor below its over-current threshold
     assert runner.sim_state.grasps == {"left_hand": "rung_5", "right_hand": "rung_6"}
     assert all(h in HANDS for h in runner.sim_state.grasps)
+
+
+def _noisy_backend(noise_percent: float, bias_percent: float):
+    import dataclasses
+
+    from sim_bridge.params import load_bridge_params
+    from sim_bridge.pybullet_backend import PyBulletBackend
+
+    params = load_bridge_params()
+    return PyBulletBackend(dataclasses.replace(params, sensors=dataclasses.replace(
+        params.sensors, ft_noise_percent=noise_percent, ft_bias_percent=bias_percent)))
+
+
+@pytest.mark.parametrize("offset", [-0.02, 0.02])
+def test_guarded_motion_under_ft_noise_of_2_percent_of_range(offset):
+    """Issue 19, sensor realism: every F/T component carries white noise of sigma 2 % of the
+    sensor's range (G1 wrist, 300 N: 6 N, as much as the nominal contact threshold) and a
+    constant bias of sigma 1 %. The controller estimates each sensor's noise online and
+    raises its contact threshold to guarded.noise_sigmas standard deviations of the filtered
+    force; the bias is tared away at the approach. The hand still finds rung 6, 2 cm off the plan,
+    on the real rung, and nothing fires before it."""
+    from sim_bridge.commands import PerturbRequest
+
+    backend = _noisy_backend(2.0, 1.0)
+    try:
+        runner, stance, q = _start(backend)
+        robot, env = backend.robot, backend.env
+        hand = limb_transfer(robot, env, stance, q, "right_hand", "rung_6", HAND_S)
+        T_planned = robot.T_world_surface("right_hand", hand.path[-1])
+        normal = T_planned[:3, 2]
+        along = np.array([normal[0], normal[2]]) / np.hypot(normal[0], normal[2])
+        dx, dz = offset * along
+        backend.request_perturbation(PerturbRequest("rung_offset", rung=6, dx=float(dx), dz=float(dz)))
+        runner.controller.set_plan(plan_of(robot, env, stance, [hand]))
+        log = runner.run(8.0, until=lambda o: o.status.fsm_state in ("hold", "failure", "replan_needed"))
+        c = runner.controller
+        assert not log.fell, log.fall_reason
+        assert c.fsm.state == "hold", [h[1:] for h in c.fsm.history]
+        assert c.qp_failures == 0
+        # the threshold rose with the noise: 5 sigma of 6 N through the filter (a = 1/2: x 0.58)
+        assert c.contact_threshold("right_hand") == pytest.approx(5 * 6.0 * np.sqrt(0.5 / 1.5), rel=0.25)
+        detections = c.events_of("contact_detected")
+        assert len(detections) == 1 and detections[0].values["limb"] == "right_hand"
+        detected_at = np.asarray(c.events_of("limb_frozen")[0].values["position"])
+        rung_axis = backend.surface_frame("rung_6")[:3, 3]
+        assert np.hypot(*(detected_at - rung_axis)[[0, 2]]) < 0.01  # [m] on the real rung
+        assert runner.sim_state.grasps["right_hand"] == "rung_6"
+    finally:
+        backend.close()

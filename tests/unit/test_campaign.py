@@ -12,10 +12,14 @@ from climb_core.ladder import parse_scenario
 
 def test_every_case_is_a_valid_scenario_the_simulator_alone_sees_perturbed():
     todo = campaign.cases(campaign.FAMILIES)
-    assert len(todo) == 2 * 9 + 3 * 7 + 1 and len({c.id for c in todo}) == len(todo)
+    assert len(todo) == 2 * 9 + 3 * 7 + 1 + 5 and len({c.id for c in todo}) == len(todo)
     for case in todo:
         scenario = parse_scenario(campaign.scenario_of(case), name=case.id)
         p = scenario.perturbation
+        # sensor realism: F/T noise in every case (the ft_noise family's own level, 1 % elsewhere)
+        assert case.ft_noise_percent() == (case.value if case.family == "ft_noise" else 1.0)
+        if case.family == "ft_noise":
+            assert case.unit == "%" and not p.drops and not p.rung_offsets
         if case.family == "rung_dz":
             assert p.rung_offset(2) == (0.0, pytest.approx(case.value))
         elif case.family.startswith("ball_"):

@@ -69,7 +69,9 @@ def test_plan_clipping_keeps_joints_inside_the_limits_and_leaves_the_base():
 @pytest.mark.parametrize("changes, field", [({"mode": "fast"}, "mode"), ({"rungs": 0}, "rungs"),
                                             ({"snapshots": -1}, "snapshots"), ({"max_transitions": 0}, "max_transitions"),
                                             ({"command_delay_ticks": 2}, "command_delay_ticks"),
-                                            ({"command_delay_ticks": True}, "command_delay_ticks")])
+                                            ({"command_delay_ticks": True}, "command_delay_ticks"),
+                                            ({"bridge_overrides": {"sensors.ft_noise_percent": -1.0}},
+                                             "sim_bridge.sensors.ft_noise_percent")])
 def test_bad_requests_name_their_field(changes, field):
     from climb_coordinator.climb import ClimbRequest, validate
 

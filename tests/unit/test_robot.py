@@ -320,6 +320,9 @@ def _set(data: dict, dotted: str, value) -> None:
     ("limbs.left_hand.ft_sensor", "left_ankle", "limbs.left_hand.ft_sensor"),       # not on the arm
     ("limbs.left_hand.colour", "red", "limbs.left_hand.colour"),
     ("ft_sensors.left_wrist", "d435_joint", "ft_sensors.left_wrist"),               # massless child
+    ("ft_ranges.left_ankle.force", 0.0, "ft_ranges.left_ankle.force"),
+    ("ft_ranges.left_wrist", {"force": 300.0}, "ft_ranges.left_wrist.torque"),
+    ("ft_ranges.left_knee", {"force": 1.0, "torque": 1.0}, "ft_ranges.left_knee"),    # not a sensor
     ("pwm.joints", {"*_elbow_joint": {"kp": -1.0}}, "pwm.joints.*_elbow_joint.kp"),
     ("motor.joints", {"*_tail_joint": {"resistance": 1.0}}, "motor.joints.*_tail_joint"),
     ("motor.default.resistance", 0.0, "motor.default.resistance"),

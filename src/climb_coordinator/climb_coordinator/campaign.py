@@ -13,7 +13,13 @@ Families (``FAMILIES``; values in the units of the column ``value``):
   times of the seed-0 plan: 4 contacts in transition 10's CoM shift, the left hand moving in
   transition 13, the left foot moving in transition 16);
 - ``box``: the DARPA-tasks paper's 2 kg object dropped on the robot (a 2 kg, 0.12 m sphere at
-  4.4 m/s: a 1 m fall) while on the ladder.
+  4.4 m/s: a 1 m fall) while on the ladder;
+- ``ft_noise``: F/T white noise of sigma 0.5-4 % of each sensor's range (``FT_NOISE_LEVELS``),
+  with a constant bias of sigma half that, on the nominal ladder.
+
+Sensor realism is on by default in every other family too: F/T noise of ``DEFAULT_FT_NOISE`` %
+of range and a bias of half that (``run_case(..., ft_noise_percent=)``, column
+``ft_noise_percent``).
 
 Every finished case is appended to a JSON-lines journal at once; a rerun with the same journal
 skips the cases already there (``run_campaign(..., resume=True)``). :func:`write_outputs` writes
@@ -36,15 +42,17 @@ PHASE_TIMES = {"4_contacts": 43.0, "hand_moving": 60.0, "foot_moving": 38.0}
 BALL_SPEED = 5.5  # [m/s] the ladder paper's
 BALL_MASSES = tuple(5.0 + 2.5 * k for k in range(7))  # [kg] 5 .. 20
 OFFSETS = tuple(round(0.01 * k, 3) for k in range(-4, 5))  # [m] -4 .. +4 cm
-FAMILIES = ("rung_dz", "rung_dx", "ball_4_contacts", "ball_hand_moving", "ball_foot_moving", "box")
+FT_NOISE_LEVELS = (0.5, 1.0, 2.0, 3.0, 4.0)  # [%] of each F/T sensor's range
+DEFAULT_FT_NOISE = 1.0  # [%] the F/T noise of every other family's cases (bias: half of it)
+FAMILIES = ("rung_dz", "rung_dx", "ball_4_contacts", "ball_hand_moving", "ball_foot_moving", "box", "ft_noise")
 CSV_FIELDS = ("case", "family", "value", "unit", "success", "fell", "failure_reason", "replans", "replan_why",
-              "qp_failures", "rungs_reached", "sim_time_s", "wall_time_s", "max_cone_use")
+              "qp_failures", "rungs_reached", "sim_time_s", "wall_time_s", "max_cone_use", "ft_noise_percent")
 
 
 @dataclass(frozen=True)
 class Case:
     family: str
-    value: float  # [m] rung offsets, [kg] balls and box
+    value: float  # [m] rung offsets, [kg] balls and box, [%] F/T noise
 
     @property
     def id(self) -> str:
@@ -52,7 +60,11 @@ class Case:
 
     @property
     def unit(self) -> str:
-        return "m" if self.family.startswith("rung") else "kg"
+        return "m" if self.family.startswith("rung") else "%" if self.family == "ft_noise" else "kg"
+
+    def ft_noise_percent(self, default: float = DEFAULT_FT_NOISE) -> float:
+        """[%] the F/T noise sigma of this case (its value in the ft_noise family)."""
+        return self.value if self.family == "ft_noise" else default
 
     def perturbation(self) -> dict:
         """The scenario's ``perturbation`` block (ladder_spec.md) of this case."""
@@ -67,7 +79,7 @@ class Case:
         elif self.family == "box":
             p["drops"] = [{"mass": self.value, "radius": 0.12, "speed": 4.4, "at_time": PHASE_TIMES["4_contacts"],
                            "target_link": "torso"}]
-        else:
+        elif self.family != "ft_noise":
             raise ValueError(f"unknown family {self.family!r} (known: {', '.join(FAMILIES)})")
         return p
 
@@ -81,6 +93,8 @@ def cases(families: Iterable[str]) -> list[Case]:
             out += [Case(family, m) for m in BALL_MASSES]
         elif family == "box":
             out.append(Case(family, 2.0))
+        elif family == "ft_noise":
+            out += [Case(family, v) for v in FT_NOISE_LEVELS]
         else:
             raise ValueError(f"unknown family {family!r} (known: {', '.join(FAMILIES)})")
     return out
@@ -96,14 +110,17 @@ def scenario_of(case: Case) -> dict:
     return spec
 
 
-def run_case(case: Case, rungs: int = 2, mode: str = "qp") -> dict:
-    """One executed climb (in this process): a CSV row."""
+def run_case(case: Case, rungs: int = 2, mode: str = "qp", ft_noise_percent: float = DEFAULT_FT_NOISE) -> dict:
+    """One executed climb (in this process): a CSV row. ``ft_noise_percent``: the F/T noise of
+    the case unless it is an ft_noise case (bias sigma: half of it)."""
     from climb_coordinator.climb import ClimbRequest, run_climb
     from climb_coordinator.settings import load_climb_settings
 
     t0 = time.perf_counter()
+    noise = case.ft_noise_percent(ft_noise_percent)
+    bridge = {"sensors.ft_noise_percent": noise, "sensors.ft_bias_percent": 0.5 * noise}
     result = run_climb(ClimbRequest(ladder=scenario_of(case), robot="g1", rungs=rungs, mode=mode, bag=False,
-                                    seed=0), load_climb_settings())
+                                    seed=0, bridge_overrides=bridge), load_climb_settings())
     try:
         s = result.summary
     finally:
@@ -116,15 +133,15 @@ def run_case(case: Case, rungs: int = 2, mode: str = "qp") -> dict:
             "replan_why": ",".join(str(r.get("why", r.get("reason", ""))) for r in replans),
             "qp_failures": int(s.get("qp_failures", 0)), "rungs_reached": int(s.get("rungs_reached", 0)),
             "sim_time_s": float(s.get("sim_time_s", 0.0)), "wall_time_s": round(time.perf_counter() - t0, 1),
-            "max_cone_use": round(max(cones.values()), 3) if cones else 0.0}
+            "max_cone_use": round(max(cones.values()), 3) if cones else 0.0, "ft_noise_percent": noise}
 
 
-def _worker(case: Case) -> dict:
+def _worker(case: Case, ft_noise_percent: float = DEFAULT_FT_NOISE) -> dict:
     import os
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:
-        return run_case(case)
+        return run_case(case, ft_noise_percent=ft_noise_percent)
     except Exception as exc:  # noqa: BLE001 - a case that raises is a failed case, reported
         return {"case": case.id, "family": case.family, "value": case.value, "unit": case.unit, "success": False,
                 "fell": False, "failure_reason": f"error: {type(exc).__name__}: {exc}"[:300], "replans": 0,
@@ -213,7 +230,7 @@ def survived(rows: list[dict]) -> dict:
                 if not r["success"]:
                     break
                 best = r["value"]
-            out[f"{family}_kg"] = best
+            out[f"{family}_{'percent' if family == 'ft_noise' else 'kg'}"] = best
     return out
 
 
@@ -231,7 +248,8 @@ def _plot(rows: list[dict], out_dir: pathlib.Path) -> None:
         x = [r["value"] * scale for r in rs]
         ax.scatter(x, [1 if r["success"] else 0 for r in rs], c=["tab:green" if r["success"] else "tab:red" for r in rs])
         ax.set_yticks([0, 1], ["failed", "success"])
-        ax.set_xlabel("rung 2 offset [cm]" if family.startswith("rung") else "mass [kg]")
+        ax.set_xlabel("rung 2 offset [cm]" if family.startswith("rung") else
+                      "F/T noise sigma [% of range]" if family == "ft_noise" else "mass [kg]")
         ax.set_title(family)
         ax.grid(alpha=0.3)
     fig.suptitle("G1, default ladder, 2-step climb: success against the perturbation")
@@ -240,5 +258,5 @@ def _plot(rows: list[dict], out_dir: pathlib.Path) -> None:
     plt.close(fig)
 
 
-__all__ = ["Case", "FAMILIES", "PHASE_TIMES", "cases", "run_case", "run_campaign", "read_journal", "survived",
+__all__ = ["Case", "DEFAULT_FT_NOISE", "FAMILIES", "FT_NOISE_LEVELS", "PHASE_TIMES", "cases", "run_case", "run_campaign", "read_journal", "survived",
            "write_outputs"]

@@ -378,13 +378,14 @@ def execute(req: ClimbRequest, plans, cs: ClimbSettings, scenario, initial_fixtu
     """The session with ``plans`` (a plan source), a fresh PyBullet world from
     ``initial_fixture`` and the controller library; the backend stays open in the result."""
     from controller_node.params import load_controller_params
+    from sim_bridge.params import load_bridge_params
     from sim_bridge.pybullet_backend import PyBulletBackend
 
     overrides = controller_overrides(req, cs)
     params = load_controller_params(**overrides)
     if req.command_delay_ticks and "actuation_latency_s" not in overrides:
         params = params.replace(actuation_latency_s=req.command_delay_ticks * params.control_period_s)
-    backend = PyBulletBackend()
+    backend = PyBulletBackend(load_bridge_params(**req.bridge_overrides))
     summary = base_summary(req)
     out = ClimbResult(summary, ClimbLog(), None, backend=backend)
     executor = InProcessExecutor(req, cs, out, scenario, initial_fixture, params, backend)

@@ -52,6 +52,9 @@ class ClimbRequest:
     snapshots: int = 0  # film strip frames to capture (0: none)
     plan_timeout_s: float | None = None
     controller_overrides: dict = field(default_factory=dict)
+    #: dotted sim_bridge params of the in-process simulator (e.g. ``{"sensors.ft_noise_percent": 2.0}``);
+    #: through the graph the bridge node's own parameters apply
+    bridge_overrides: dict = field(default_factory=dict)
     max_transitions: int | None = None  # execute only the plan's first k transitions (None: all)
     descend: bool = False  # climb `rungs` rungs, then climb back down to the ground
     plan_cycles: int | None = None  # plan this many cycles at a time, the next ones from the reached state
@@ -104,6 +107,10 @@ def validate(req: ClimbRequest) -> None:
                                          f"got {req.start_posture!r}")
     if req.strategy == "search" and (req.descend or req.plan_cycles is not None):
         raise SpecError("strategy", "a searched climb is planned in one piece and upward: no descend, no plan_cycles")
+    if req.bridge_overrides:
+        from sim_bridge.params import load_bridge_params
+
+        load_bridge_params(**req.bridge_overrides)  # SpecError naming the parameter and its rule
 
 
 @functools.lru_cache(maxsize=8)

@@ -38,7 +38,7 @@ _SURFACE_KINDS = ("sole", "palm", "grasp")
 _MOTOR_FIELDS = ("supply_voltage", "resistance", "torque_constant", "gear_ratio", "current_limit",
                  "trip_hold_off_s")
 _REQUIRED_SOURCES = ("urdf", "locked_joints", "reference_posture", "base_height", "grip_strength",
-                     "capture_range", "limbs", "ft_sensors", "pwm", "motor", "collision", "sim")
+                     "capture_range", "limbs", "ft_sensors", "ft_ranges", "pwm", "motor", "collision", "sim")
 
 
 # --------------------------------------------------------------------------------------------
@@ -197,6 +197,7 @@ class RobotConfig:
     package_dirs: tuple[pathlib.Path, ...]
     limbs: dict[str, Limb]
     ft_sensors: dict[str, str]  # sensor name -> URDF joint
+    ft_ranges: dict[str, tuple[float, float]]  # sensor name -> (force [N], torque [N m]) measuring range
     locked_joints: tuple[str, ...]
     reference_posture: dict[str, float]  # whole-body joint -> [rad] (every whole-body joint listed)
     base_height: float  # [m]
@@ -344,8 +345,8 @@ def _expand_patterns(entries: dict, joints: tuple[str, ...], path: str) -> list[
 # Config parsing
 # --------------------------------------------------------------------------------------------
 _TOP_KEYS = ("name", "description", "urdf", "package_dirs", "locked_joints", "reference_posture",
-             "base_height", "grip_strength", "capture_range", "limbs", "ft_sensors", "pwm", "motor",
-             "collision", "sim", "sources")
+             "base_height", "grip_strength", "capture_range", "limbs", "ft_sensors", "ft_ranges", "pwm",
+             "motor", "collision", "sim", "sources")
 
 
 def resolve_config_path(name_or_path: str | os.PathLike) -> pathlib.Path:
@@ -440,6 +441,14 @@ def parse_robot_config(data: Any, config_path: pathlib.Path | None = None) -> Ro
             raise SpecError(f"ft_sensors.{sensor}",
                             f"child link of {joint!r} has no mass: PyBullet reads 0 on such a joint")
         ft_sensors[str(sensor)] = joint
+    # measuring range of each sensor (force [N], torque [N m]): sensor noise is given in % of it
+    ranges_raw = _mapping(data["ft_ranges"], "ft_ranges", tuple(ft_sensors), required=tuple(ft_sensors))
+    ft_ranges: dict[str, tuple[float, float]] = {}
+    for sensor, raw in ranges_raw.items():
+        where = f"ft_ranges.{sensor}"
+        raw = _mapping(raw, where, ("force", "torque"), required=("force", "torque"))
+        ft_ranges[sensor] = (_number(raw["force"], f"{where}.force", positive=True),
+                             _number(raw["torque"], f"{where}.torque", positive=True))
 
     # Limbs ----------------------------------------------------------------------------------
     limbs_raw = _mapping(data["limbs"], "limbs", LIMBS, required=LIMBS)
@@ -508,7 +517,7 @@ def parse_robot_config(data: Any, config_path: pathlib.Path | None = None) -> Ro
 
     return RobotConfig(
         name=name, urdf_path=urdf_path, package_dirs=tuple(package_dirs), limbs=limbs,
-        ft_sensors=ft_sensors, locked_joints=tuple(locked), reference_posture=posture,
+        ft_sensors=ft_sensors, ft_ranges=ft_ranges, locked_joints=tuple(locked), reference_posture=posture,
         base_height=base_height, grip_strength=grip_strength, capture_range=capture_range,
         pwm=pwm, motor=motor, collision=CollisionConfig(tuple(pairs), env_links), sim=sim,
         sources=sources, config_path=config_path, description=description)

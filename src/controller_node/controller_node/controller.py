@@ -19,6 +19,7 @@ good feed-forward. Never NaN, never garbage.
 """
 from __future__ import annotations
 
+import math
 import pathlib
 import time
 from dataclasses import dataclass, field
@@ -192,6 +193,8 @@ class Controller:
         # F/T
         self._ft_filtered: dict[str, np.ndarray] = {}
         self._ft_tare: dict[str, np.ndarray] = {}
+        self._ft_raw: dict[str, np.ndarray] = {}  # limb -> last raw F/T force in world axes [N]
+        self._ft_noise_var: dict[str, float] = {}  # limb -> estimated raw noise variance per component [N^2]
         self._approach: dict[str, np.ndarray] = {}  # limb -> unit approach direction (world)
         # outputs / bookkeeping
         self.grippers_out: list[GripperRequest] = []
@@ -504,15 +507,31 @@ class Controller:
         return RobotState(state.time, pin.integrate(self.model, state.q, dq), v, state.ft, state.stamp_ns)
 
     # ------------------------------------------------------------------ F/T
-    def _update_ft(self, state: RobotState) -> None:
+    def _ft_alpha(self) -> float:
+        """Gain of the first-order F/T filter per control period [-]."""
         tau_f = self.params.guarded.filter_time_constant_s
-        alpha = 1.0 if tau_f <= 0 else min(1.0, self.params.control_period_s / tau_f)
+        return 1.0 if tau_f <= 0 else min(1.0, self.params.control_period_s / tau_f)
+
+    def _update_ft(self, state: RobotState) -> None:
+        g = self.params.guarded
+        alpha = self._ft_alpha()
+        beta = min(1.0, self.params.control_period_s / g.noise_time_constant_s)
         oMf, ft, filtered = self.wb.data.oMf, state.ft, self._ft_filtered
         for limb, sensor, fid in self._ft_limbs:
             wrench = ft.get(sensor)
             if wrench is None:
                 continue
             force_world = oMf[fid].rotation @ np.asarray(wrench[:3], float)
+            # the noise: white noise of variance s^2 per component gives tick-to-tick differences
+            # of variance 2 s^2; each sample's share is capped (16 x the estimate + 1 N^2) so that
+            # a contact change or an impact does not pass for noise
+            raw_prev = self._ft_raw.get(limb)
+            self._ft_raw[limb] = force_world.copy()
+            if raw_prev is not None:
+                d = force_world - raw_prev
+                var = self._ft_noise_var.get(limb, 0.0)
+                sample = min(float(d @ d) / 6.0, 16.0 * var + 1.0)
+                self._ft_noise_var[limb] = var + beta * (sample - var)
             previous = filtered.get(limb)
             if previous is not None:
                 force_world -= previous
@@ -526,6 +545,18 @@ class Controller:
 
     def tare_ft(self, limb: str) -> None:
         self._ft_tare[limb] = self.ft_force(limb)
+
+    def ft_noise_std(self, limb: str) -> float:
+        """Standard deviation [N] of the filtered F/T force noise of the limb's sensor along one
+        axis, estimated online (white noise through the first-order filter: s sqrt(a / (2 - a)))."""
+        alpha = self._ft_alpha()
+        return math.sqrt(self._ft_noise_var.get(limb, 0.0) * alpha / (2.0 - alpha))
+
+    def contact_threshold(self, limb: str) -> float:
+        """[N] the F/T force change that means contact: ``guarded.force_threshold``, or
+        ``guarded.noise_sigmas`` standard deviations of the sensor's filtered noise when larger."""
+        g = self.params.guarded
+        return max(g.force_threshold, g.noise_sigmas * self.ft_noise_std(limb))
 
     def ft_force_change(self, limb: str) -> float:
         """Contact force [N] the limb's F/T has seen since the tare: the change of the filtered

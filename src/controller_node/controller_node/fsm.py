@@ -147,6 +147,7 @@ class Context(Protocol):
     def gripper(self, hand: str, command: str, position: float = 0.0) -> None: ...
     def tare_ft(self, limb: str) -> None: ...
     def ft_force_change(self, limb: str) -> float: ...
+    def contact_threshold(self, limb: str) -> float: ...
     def freeze_limb(self) -> None: ...
     def creep(self, distance: float) -> None: ...
     def set_guard(self, limb: str, surface: str, on: bool) -> None: ...
@@ -267,7 +268,9 @@ class TransferState(State):
 
     The limb's F/T is tared when the last path segment (the approach) begins, and watched from
     ``guarded.settle_time_s`` later: a force against the approach direction above
-    ``guarded.force_threshold`` is the contact (early when the path is not finished)."""
+    ``guarded.force_threshold`` (or ``guarded.noise_sigmas`` standard deviations of the sensor's
+    noise when larger: Context.contact_threshold) is the contact (early when the path is not
+    finished)."""
 
     name = "transfer"
     events = ("contact", "path_end")
@@ -294,7 +297,7 @@ class TransferState(State):
             ramp = min(1.0, (ctx.time - self.tared_at) / max(g.stiffen_time_s, 1e-9))
             task.stiffness = k0 + ramp * (g.search_stiffness - k0)
         armed = self.tared_at is not None and ctx.time - self.tared_at >= g.settle_time_s
-        if armed and ctx.ft_force_change(ctx.moving_limb) > g.force_threshold:
+        if armed and ctx.ft_force_change(ctx.moving_limb) > ctx.contact_threshold(ctx.moving_limb):
             ctx.freeze_limb()
             ctx.emit("contact_detected", limb=ctx.moving_limb, early=not done, state=self.name)
             return "contact"
@@ -320,7 +323,7 @@ class SearchState(State):
 
     def run(self, ctx: Context) -> str | None:
         g = ctx.params.guarded
-        if ctx.ft_force_change(ctx.moving_limb) > g.force_threshold:
+        if ctx.ft_force_change(ctx.moving_limb) > ctx.contact_threshold(ctx.moving_limb):
             ctx.freeze_limb()
             ctx.emit("contact_detected", limb=ctx.moving_limb, early=False, state=self.name,
                      extra_travel=self.travelled)

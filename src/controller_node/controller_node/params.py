@@ -150,6 +150,13 @@ class GuardedParams:
                                              "holds and asks for a replan in the corrected model "
                                              "(replan_needed, reason contact_offset)")
     filter_time_constant_s: float = param(0.01, unit="s", min=0.0, description="first-order filter on the F/T force")
+    noise_sigmas: float = param(5.0, unit="-", min=0.0,
+                                description="the contact threshold is at least this many standard deviations of "
+                                            "the filtered F/T force noise, estimated online per sensor (0: "
+                                            "force_threshold alone)")
+    noise_time_constant_s: float = param(1.0, unit="s", min=0.01,
+                                         description="time constant of the online F/T noise estimate (from the "
+                                                     "raw force's tick-to-tick differences)")
     approach_arm_fraction: float = param(0.0, unit="-", min=0.0, max=1.0,
                                          description="contact checks start this far into the last path segment "
                                                      "(the approach; the F/T is tared again there), plus settle_time_s")

@@ -2,10 +2,13 @@
 
 A CLOSE request on a hand whose grasp centre is within the robot's ``capture_range`` of a rung or
 rail axis latches the grasp: a PyBullet fixed constraint between the hand's surface link and the
-rung body, anchored on the axis (``grasp.snap_to_axis``) with the hand's current orientation,
-whose ``maxForce`` is the robot's grip strength. PyBullet caps each constraint row separately, so
-each world axis of the grip force is limited to the grip strength (the norm can reach sqrt(3)
-times it): an overloaded grasp slides. When the grasp centre has slid farther than the capture
+rung body, anchored on the axis (``grasp.snap_to_axis``) with the hand's current orientation.
+The grip strength bounds the norm of the grasp's force: PyBullet caps each constraint row
+separately (one ``maxForce`` for every row), which alone would let a diagonal load through up to
+sqrt(3) times the grip strength. After every physics step the cap is therefore set to the grip strength times the
+largest row share of the last applied force's direction, max_i |f_i| / |f| (between 1/sqrt(3) and
+1): a load in a steady direction saturates exactly when its norm reaches the grip strength, and an
+overloaded grasp slides. When the grasp centre has slid farther than the capture
 range from its anchor, the fingers have lost the rung: the grasp is reported as slipped and
 released. The fingers are driven closed (finger joints, position servo) but they never carry the
 load; collisions between the hand's links and the grasped body are off while latched and come
@@ -37,6 +40,7 @@ class Grasp:
     anchor_in_body: np.ndarray  # (3,) [m] the anchor point in the surface body's frame
     distance_at_latch: float  # [m] grasp centre to axis when it latched
     anchor_in_world: np.ndarray | None = None  # (3,) [m] cache of anchor_world() (None: to compute)
+    row_cap: float = 0.0  # [N] the constraint's maxForce now (norm_cap())
 
 
 @dataclass
@@ -110,7 +114,7 @@ class GraspManager:
         p.changeConstraint(constraint, maxForce=b.grip_strength, erp=self.params.constraint_erp, physicsClientId=cid)
         self._set_hand_collision(hand, body, False)
         self._filtered = [(h, bd) for h, bd in self._filtered if not (h == hand and bd == body)]
-        self.latched[hand] = Grasp(hand, surface, body, constraint, anchor_in_body, dist)
+        self.latched[hand] = Grasp(hand, surface, body, constraint, anchor_in_body, dist, row_cap=b.grip_strength)
         b._emit("grasp", f"{hand} latched on {surface} ({dist * 100:.1f} cm from its axis, grip "
                 f"{b.grip_strength:.0f} N)", 0, hand=hand, surface=surface, distance_m=f"{dist:.4f}")
 
@@ -126,9 +130,28 @@ class GraspManager:
                 hand=hand, surface=grasp.surface)
 
     def set_max_force(self, newtons: float) -> None:
-        b = self.backend
+        """A new grip strength [N] (the backend's ``grip_strength``): the caps follow it."""
         for grasp in self.latched.values():
-            b.p.changeConstraint(grasp.constraint, maxForce=newtons, physicsClientId=b.client)
+            self._set_row_cap(grasp, newtons)
+            self.norm_cap(grasp)
+
+    def _set_row_cap(self, grasp: Grasp, newtons: float) -> None:
+        b = self.backend
+        b.p.changeConstraint(grasp.constraint, maxForce=newtons, physicsClientId=b.client)
+        grasp.row_cap = newtons
+
+    def norm_cap(self, grasp: Grasp) -> None:
+        """Cap the constraint's rows so that the norm of its force stays within the grip strength:
+        ``maxForce`` = grip strength * max_i |f_i| / |f| for the direction of the last applied
+        force f (its three linear rows); the grip strength itself while f is under 1 N. Changed
+        only when it moves by more than 1 %."""
+        b = self.backend
+        limit = b.grip_strength
+        f = b.p.getConstraintState(grasp.constraint, physicsClientId=b.client)[:3]
+        norm = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
+        cap = limit * max(abs(f[0]), abs(f[1]), abs(f[2])) / norm if norm > 1.0 else limit
+        if abs(cap - grasp.row_cap) > 0.01 * limit:
+            self._set_row_cap(grasp, cap)
 
     def surface_moved(self, name: str, offset: np.ndarray) -> None:
         """A rung / rail was moved: its anchors are in its body frame and follow it."""
@@ -153,6 +176,11 @@ class GraspManager:
         """[m] slide() given the hand's current T_world_surface."""
         d = T_world_surface[:3, 3] - self.anchor_world(grasp)
         return math.sqrt(d.dot(d))  # = np.linalg.norm(d), without its argument checks
+
+    def cap_norms(self) -> None:
+        """After every physics step: each latched grasp's row cap for the norm (norm_cap())."""
+        for grasp in self.latched.values():
+            self.norm_cap(grasp)
 
     def update(self) -> None:
         """Once per tick: slipped grasps are lost; released hands get their collisions back."""

@@ -100,6 +100,12 @@ class GraspParams:
 class SensorParams:
     ft_force_noise_std: float = param(0.0, unit="N", min=0.0, description="F/T force white noise")
     ft_torque_noise_std: float = param(0.0, unit="N m", min=0.0, description="F/T torque white noise")
+    ft_noise_percent: float = param(0.0, unit="%", min=0.0, max=100.0,
+                                    description="F/T white noise: sigma of each force / torque component in % of the "
+                                                "sensor's range (robot config ft_ranges), on top of the absolute ones")
+    ft_bias_percent: float = param(0.0, unit="%", min=0.0, max=100.0,
+                                   description="F/T bias: sigma of a constant offset of each component in % of the "
+                                               "sensor's range, drawn at every reset")
     joint_position_noise_std: float = param(0.0, unit="rad", min=0.0, description="joint position noise")
     joint_velocity_noise_std: float = param(0.0, unit="rad/s", min=0.0, description="joint velocity noise")
     imu_gyro_noise_std: float = param(0.0, unit="rad/s", min=0.0, description="gyro noise")

@@ -499,6 +499,8 @@ class PyBulletBackend(Backend):
             p.stepSimulation(physicsClientId=cid)
             physics += perf_counter() - t0
             self._invalidate()
+            if self.grasps.latched:
+                self.grasps.cap_norms()
             if self.balls:
                 self._track_balls(dt)
         self.physics_time_s = physics
@@ -620,7 +622,20 @@ class PyBulletBackend(Backend):
         self._link_names = {idx: name for name, idx in self.link_index.items()}
         self._gravity_in_world = np.array([0.0, 0.0, -self.params.physics.gravity])
         self._finger_positions = {hand: 0.0 for hand in self.hand_fingers}
+        self._ft_bias, self._ft_sigma = self._ft_errors()
         self._invalidate()
+
+    def _ft_errors(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(bias, noise sigma), each (k, 6) [N, N m] per sensor of _ft_order (None when zero): the
+        absolute sigmas plus the percentages of each sensor's range (robot config ft_ranges); the
+        bias is drawn once per reset."""
+        s = self.params.sensors
+        ranges = self.robot.config.ft_ranges
+        scale = np.array([[ranges[n][0]] * 3 + [ranges[n][1]] * 3 for n in self._ft_order]).reshape(-1, 6)
+        absolute = np.array([s.ft_force_noise_std] * 3 + [s.ft_torque_noise_std] * 3)
+        sigma = np.sqrt(absolute ** 2 + (0.01 * s.ft_noise_percent * scale) ** 2)
+        bias = self.rng.normal(0.0, 1.0, scale.shape) * (0.01 * s.ft_bias_percent * scale)
+        return (bias if s.ft_bias_percent else None), (sigma if sigma.any() else None)
 
     def observe(self) -> SimState:
         p, cid, body = self.p, self.client, self.body
@@ -646,13 +661,15 @@ class PyBulletBackend(Backend):
             # torque about the link origin += r x force, r the COM in the link frame
             torque += self._ft_t_yzx * force.take(_ZXY, axis=1) - self._ft_t_zxy * force.take(_YZX, axis=1)
             force, torque = -force, -torque
+            if self._ft_bias is not None:
+                force += self._ft_bias[:, :3]
+                torque += self._ft_bias[:, 3:]
+            if self._ft_sigma is not None:  # (k, 6) [N], [N m]
+                noise = self.rng.normal(0.0, 1.0, self._ft_sigma.shape) * self._ft_sigma
+                force += noise[:, :3]
+                torque += noise[:, 3:]
             for k, sensor in enumerate(self._ft_order):
-                f_k, t_k = force[k], torque[k]
-                if s.ft_force_noise_std:
-                    f_k = f_k + self.rng.normal(0.0, s.ft_force_noise_std, 3)
-                if s.ft_torque_noise_std:
-                    t_k = t_k + self.rng.normal(0.0, s.ft_torque_noise_std, 3)
-                ft[sensor] = Wrench(f_k, t_k)
+                ft[sensor] = Wrench(force[k], torque[k])
         accel = R.T @ (self._imu_acc - self._gravity_in_world)
         if s.imu_gyro_noise_std:
             gyro = gyro + self.rng.normal(0.0, s.imu_gyro_noise_std, 3)
