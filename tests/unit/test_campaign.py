@@ -16,8 +16,9 @@ def test_every_case_is_a_valid_scenario_the_simulator_alone_sees_perturbed():
     for case in todo:
         scenario = parse_scenario(campaign.scenario_of(case), name=case.id)
         p = scenario.perturbation
-        # sensor realism: F/T noise in every case (the ft_noise family's own level, 1 % elsewhere)
-        assert case.ft_noise_percent() == (case.value if case.family == "ft_noise" else 1.0)
+        # sensor realism: F/T noise in every case (the ft_noise family's own level, the default elsewhere)
+        assert case.ft_noise_percent() == (case.value if case.family == "ft_noise" else campaign.DEFAULT_FT_NOISE)
+        assert case.ft_noise_percent() > 0.0
         if case.family == "ft_noise":
             assert case.unit == "%" and not p.drops and not p.rung_offsets
         if case.family == "rung_dz":
