@@ -88,12 +88,11 @@ def test_right_hand_then_right_foot_transfer_regrasp_and_no_fall(backend, delay)
     assert [e.values["limb"] for e in detections] == ["right_hand", "right_foot"]
 
 
-@pytest.mark.parametrize("offset, early", [(-0.02, True), (0.02, False)])
-def test_guarded_motion_detects_a_rung_moved_2cm_from_the_wrist_ft(backend, offset, early):
-    """Rung 6 is 2 cm off its planned place along the hand's approach (its palm normal at the
-    planned grasp): closer (early contact) or farther (late). The plan is made on the nominal
-    ladder; the contact is detected from the wrist F/T only; the hand stops on the real rung,
-    grasps it and the transfer completes."""
+def _hand_onto_moved_rung_6(backend, offset):
+    """The right hand's transfer to rung 6, planned on the nominal ladder while the simulator's
+    rung 6 is ``offset`` [m] off along the hand's approach (its palm normal at the planned grasp):
+    closer (< 0, early contact) or farther (late). Runs to hold / failure / replan_needed;
+    (runner, the transfer, the planned grasp pose, the log)."""
     from sim_bridge.commands import PerturbRequest
 
     runner, stance, q = _start(backend)
@@ -106,6 +105,16 @@ def test_guarded_motion_detects_a_rung_moved_2cm_from_the_wrist_ft(backend, offs
     backend.request_perturbation(PerturbRequest("rung_offset", rung=6, dx=float(dx), dz=float(dz)))
     runner.controller.set_plan(plan_of(robot, env, stance, [hand]))
     log = runner.run(8.0, until=lambda o: o.status.fsm_state in ("hold", "failure", "replan_needed"))
+    return runner, hand, T_planned, log
+
+
+@pytest.mark.parametrize("offset, early", [(-0.02, True), (0.02, False)])
+def test_guarded_motion_detects_a_rung_moved_2cm_from_the_wrist_ft(backend, offset, early):
+    """Rung 6 is 2 cm off its planned place along the hand's approach (its palm normal at the
+    planned grasp): closer (early contact) or farther (late). The plan is made on the nominal
+    ladder; the contact is detected from the wrist F/T only; the hand stops on the real rung,
+    grasps it and the transfer completes."""
+    runner, hand, T_planned, log = _hand_onto_moved_rung_6(backend, offset)
     c = runner.controller
     assert not log.fell, log.fall_reason
     assert c.fsm.state == "hold", [h[1:] for h in c.fsm.history]
@@ -166,20 +175,9 @@ def test_guarded_motion_under_ft_noise_of_2_percent_of_range(offset):
     raises its contact threshold to guarded.noise_sigmas standard deviations of the filtered
     force; the bias is tared away at the approach. The hand still finds rung 6, 2 cm off the plan,
     on the real rung, and nothing fires before it."""
-    from sim_bridge.commands import PerturbRequest
-
     backend = _noisy_backend(2.0, 1.0)
     try:
-        runner, stance, q = _start(backend)
-        robot, env = backend.robot, backend.env
-        hand = limb_transfer(robot, env, stance, q, "right_hand", "rung_6", HAND_S)
-        T_planned = robot.T_world_surface("right_hand", hand.path[-1])
-        normal = T_planned[:3, 2]
-        along = np.array([normal[0], normal[2]]) / np.hypot(normal[0], normal[2])
-        dx, dz = offset * along
-        backend.request_perturbation(PerturbRequest("rung_offset", rung=6, dx=float(dx), dz=float(dz)))
-        runner.controller.set_plan(plan_of(robot, env, stance, [hand]))
-        log = runner.run(8.0, until=lambda o: o.status.fsm_state in ("hold", "failure", "replan_needed"))
+        runner, _, _, log = _hand_onto_moved_rung_6(backend, offset)
         c = runner.controller
         assert not log.fell, log.fall_reason
         assert c.fsm.state == "hold", [h[1:] for h in c.fsm.history]

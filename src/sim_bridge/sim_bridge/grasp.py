@@ -5,10 +5,10 @@ rail axis latches the grasp: a PyBullet fixed constraint between the hand's surf
 rung body, anchored on the axis (``grasp.snap_to_axis``) with the hand's current orientation.
 The grip strength bounds the norm of the grasp's force: PyBullet caps each constraint row
 separately (one ``maxForce`` for every row), which alone would let a diagonal load through up to
-sqrt(3) times the grip strength. After every physics step the cap is therefore set to the grip strength times the
-largest row share of the last applied force's direction, max_i |f_i| / |f| (between 1/sqrt(3) and
-1): a load in a steady direction saturates exactly when its norm reaches the grip strength, and an
-overloaded grasp slides. When the grasp centre has slid farther than the capture
+sqrt(3) times the grip strength. After every physics step the cap is therefore set to the grip
+strength times the largest row share of the last applied force's direction, max_i |f_i| / |f|
+(between 1/sqrt(3) and 1): a load in a steady direction saturates exactly when its norm reaches
+the grip strength, and an overloaded grasp slides. When the grasp centre has slid farther than the capture
 range from its anchor, the fingers have lost the rung: the grasp is reported as slipped and
 released. The fingers are driven closed (finger joints, position servo) but they never carry the
 load; collisions between the hand's links and the grasped body are off while latched and come

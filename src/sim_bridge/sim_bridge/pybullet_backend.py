@@ -634,8 +634,9 @@ class PyBulletBackend(Backend):
         scale = np.array([[ranges[n][0]] * 3 + [ranges[n][1]] * 3 for n in self._ft_order]).reshape(-1, 6)
         absolute = np.array([s.ft_force_noise_std] * 3 + [s.ft_torque_noise_std] * 3)
         sigma = np.sqrt(absolute ** 2 + (0.01 * s.ft_noise_percent * scale) ** 2)
-        bias = self.rng.normal(0.0, 1.0, scale.shape) * (0.01 * s.ft_bias_percent * scale)
-        return (bias if s.ft_bias_percent else None), (sigma if sigma.any() else None)
+        bias = self.rng.normal(0.0, 1.0, scale.shape) * (0.01 * s.ft_bias_percent * scale) \
+            if s.ft_bias_percent else None  # no draw without a bias: the noise streams stay as they were
+        return bias, (sigma if sigma.any() else None)
 
     def observe(self) -> SimState:
         p, cid, body = self.p, self.client, self.body
