@@ -25,7 +25,7 @@ Surfaces (``Environment.surfaces``, in this order) and their local frames ``T_wo
 | name                       | role     | shape    | frame origin / axes |
 | -------------------------- | -------- | -------- | ------------------- |
 | ground                     | ground   | plane    | world origin, world axes; z = plane normal; the plane is z = 0 |
-| rung_1 .. rung_n           | rung (circle) / tread (rect) | cylinder / box | rung centre; x = rung axis = L +y (robot's left), y = L -x (toward the robot), z = up |
+| rung_1 .. rung_n           | rung (circle, or rect on regular / vertical / a_frame ladders) / tread (rect on ship / stairs) | cylinder / box | rung centre; x = rung axis = L +y (robot's left), y = L -x (toward the robot), z = up; a box's ``length`` = the rung width |
 | stringer_left, _right      | stringer | box      | box centre on the stringer line at y = +-(w/2 + stringer.width/2); x = d (up the ladder), y = L +y, z = d x y = ladder-plane normal toward the robot |
 | rail_left, rail_right      | rail     | cylinder | axis centre; axes as stringers (x = d = cylinder axis); the axis is the nose line shifted up by ``height`` (vertically) and sideways to y = +-(w/2 + stringer.width/2) (+ rails_dy when perturbed), from t_foot to t_top |
 | platform                   | platform | box      | box centre; L axes; top face at the top rung's top (z_n + half_height), front face touching the back of the top rung (x_n + half_depth), ``depth`` along +x |
@@ -42,8 +42,8 @@ Use of each surface (``Surface.contact_limbs``, ``Surface.bilateral``; one query
 | role              | contact_limbs | bilateral |
 | ----------------- | ------------- | --------- |
 | ground            | foot          | no        |
-| rung (circle)     | foot, hand    | yes       |
-| tread (rect rung) | foot          | no        |
+| rung (circle / rect bar) | foot, hand | yes (a rect bar: if it fits the hand, ``climb_core.holds.grasp_fits``) |
+| tread (rect, ship / stairs) | foot      | no        |
 | rail              | hand          | yes       |
 | platform          | foot          | no        |
 | stringer, obstacle| none          | no        |
@@ -86,7 +86,7 @@ from .ladder import DEFAULTS, LadderSpec, PerturbationSpec, Scenario, load_scena
 from .scene import CONTACT_LIMBS, DEFAULT_GROUND_FRICTION, GoalSpec, SceneSpec, StartSpec
 
 __all__ = [
-    "PYBULLET_FRICTION_COMBINATION", "GROUND_HALF_SIZE", "GROUND_COLLISION_THICKNESS", "R_SURFACE_CYLINDER",
+    "PYBULLET_FRICTION_COMBINATION", "TREAD_LADDERS", "GROUND_HALF_SIZE", "GROUND_COLLISION_THICKNESS", "R_SURFACE_CYLINDER",
     "ROLES", "ROLE_USE", "Surface", "Environment", "build_environment", "pybullet_friction", "rpy_deg_to_matrix",
     "quaternion_xyzw",
 ]
@@ -100,6 +100,9 @@ GROUND_COLLISION_THICKNESS = 1.0
 #: Columns: the coal / PyBullet cylinder primitive axes (x, y, z) in the surface frame. The
 #: primitive's z (its axis) is the surface's x.
 R_SURFACE_CYLINDER = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+#: Ladder types whose rect rungs are treads (feet only; the hands hold the rails). On the other
+#: types a rect rung is a rung: a bar the feet stand on and a hand may close around.
+TREAD_LADDERS = ("ship", "stairs")
 ROLES = ("ground", "rung", "tread", "rail", "stringer", "platform", "obstacle", "scene")
 #: (contact_limbs, bilateral) of the surfaces the project builds itself, per role (scene
 #: surfaces take their spec's values).
@@ -183,7 +186,7 @@ class Surface:
     shape: str  # cylinder | box | plane
     T_world_surface: np.ndarray  # 4x4, see the module docstring for each role's axes
     radius: float = 0.0  # [m] cylinder
-    length: float = 0.0  # [m] cylinder, full length along local x
+    length: float = 0.0  # [m] cylinder and rect rung / tread: full length along local x
     half_extents: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [m] along local x, y, z
     friction: float = 0.0  # [-] Coulomb coefficient of robot contacts on this surface
     contact_limbs: tuple[str, ...] = ()  # limb types ("foot", "hand") that may be placed on it
@@ -431,8 +434,9 @@ def _ladder_surfaces(fr: _Frame, pert: PerturbationSpec, add: Callable[..., None
             r = 0.5 * lad.rung.diameter
             add(f"rung_{k}", "rung", "cylinder", fr.R_rung, centre, radius=r, length=lad.rung_width,
                 half_extents=(0.5 * lad.rung_width, r, r))
-        else:
-            add(f"rung_{k}", "tread", "box", fr.R_rung, centre,
+        else:  # a rect bar on a ladder (hands may close around it, if it fits the hand), a tread on ship / stairs
+            add(f"rung_{k}", "tread" if lad.type in TREAD_LADDERS else "rung", "box", fr.R_rung, centre,
+                length=lad.rung_width,
                 half_extents=(0.5 * lad.rung_width, 0.5 * lad.rung.depth, 0.5 * lad.rung.thickness))
     # stringers (front)
     length = fr.t_top - fr.t_foot

@@ -259,9 +259,12 @@ def _hand_candidates(robot: Any, env: Any, params: FixtureParams) -> list[Any]:
     out = []
     rails = env.rails() if hasattr(env, "rails") else {}
     preferred = f"rung_{params.hands_rung}"
-    if params.hands_rung <= env.n_rungs and env.surfaces[preferred].shape == "cylinder":
+    def graspable(name: str) -> bool:  # both hands close around it (a round rung, a rect bar that fits)
+        return all(holds.grasp_fits(robot, hand, env.surfaces[name]) for hand in side)
+
+    if params.hands_rung <= env.n_rungs and graspable(preferred):
         for k in (params.hands_rung, params.hands_rung - 1, params.hands_rung + 1):
-            if params.feet_rung < k <= env.n_rungs and env.surfaces[f"rung_{k}"].shape == "cylinder":
+            if params.feet_rung < k <= env.n_rungs and graspable(f"rung_{k}"):
                 out.append(lambda limb, hp, k=k: holds.make_hold(
                     robot, env, limb, f"rung_{k}", side[limb] * params.hand_spacing, params=hp))
     elif {"left", "right"} <= set(rails):
@@ -270,8 +273,10 @@ def _hand_candidates(robot: Any, env: Any, params: FixtureParams) -> list[Any]:
             height = feet_top + params.rail_hand_height + dh
             out.append(lambda limb, hp, height=height: _rail_hold(robot, limb, env, rails, height, hp))
     if not out:
-        raise SpecError("fixtures.hands_rung", f"rung_{params.hands_rung} of {env.name} is not a cylinder and "
-                                               "there are no hand rails on both sides")
+        raise SpecError("fixtures.hands_rung", f"the hands of {robot.config.name} cannot close around "
+                                               f"rung_{params.hands_rung} of {env.name} (not a cylinder nor a "
+                                               "rect bar that fits the hand) and there are no hand rails on both "
+                                               "sides")
     return out
 
 

@@ -24,6 +24,21 @@ Geometry (all world frame):
   the sole width, normals from the rung axis toward the foot; unilateral. Target: the sole
   tangent to the rung on its top line, its centre (shifted by ``foot_on_rung_offset`` along the
   foot's forward axis) above the axis, the foot pointing along the ladder's forward direction.
+- rectangular rungs (``is_bar``: a box of role ``rung``, the rect rungs of regular, vertical and
+  A-frame ladders; ship and stairs treads stay flat surfaces). A hand ``grasp`` on a bar (any
+  bilateral box) that fits the hand (:func:`check_grasp_fits`: with the palm on the bar's face
+  toward the robot, its depth within the grasp surface's ``max_bar.depth``, its thickness within
+  ``max_bar.width``; else a SpecError naming ``ladder.rung.depth`` / ``ladder.rung.thickness``
+  and the limit): 8 points, two
+  rings of four around the grasp centre as on a cylinder, ring 1 on the four face centres of the
+  bar's cross-section (normals the face normals), ring 2 on its four edges (normals the
+  diagonals); bilateral. Target: as on a cylinder (grasp axis along the bar, centre on its centre
+  line, palm on the robot's side), the palm ``grasp_palm_angle_bar_deg`` above the horizontal
+  (config/feasibility.yaml: 30, as on a cylinder, the roll the primitives were designed with; the
+  IK leaves the roll free on a bar as on a cylinder). A ``sole`` on a bar, kind ``sole_bar`` (the
+  ladder paper's Fig. 6 foot hold): the four corners of the bar's top face under the sole (along
+  the bar: the sole width apart, or ``foot_on_rung_spacing``; across: the bar's depth), normals
+  up; unilateral. Target: as on a cylinder, the sole on the top face above the centre line.
 
 ``s`` is the position along the surface axis (local x of the surface; cylinders are along local
 x) measured from the surface centre [m]. On the ground plane the sole centre is given by
@@ -60,7 +75,11 @@ class HoldParams:
         "sole centre shift along the foot's forward axis from the rung's top line (positive: "
         "the heel moves toward the ladder)"))
     foot_on_rung_spacing: float = param(0.0, unit="m", min=0.0, description=(
-        "distance between the 2 points of a foot on a cylindrical rung; 0 = the sole width"))
+        "distance between the 2 points of a foot on a cylindrical rung (the 2 pairs of corners on a "
+        "rect rung); 0 = the sole width"))
+    grasp_palm_angle_bar_deg: float = param(30.0, unit="deg", min=-90.0, max=90.0, description=(
+        "nominal roll of a grasp around a rectangular bar: the palm on the robot's side, this far above "
+        "the horizontal (0 = flat on the bar's face toward the robot)"))
 
 
 @dataclass(frozen=True)
@@ -72,7 +91,7 @@ class HoldTarget:
     T_world_surface: np.ndarray  # 4x4 target pose of the robot contact surface frame
     T_world_frame: np.ndarray  # 4x4 target pose of `frame`
     free_axis_in_surface: np.ndarray | None  # unit axis (surface frame) about which rotation is free (grasp), or None
-    kind: str  # sole_flat | sole_cylinder | palm_flat | palm_cylinder | grasp
+    kind: str  # sole_flat | sole_cylinder | sole_bar | palm_flat | palm_cylinder | grasp
     robot_surface: str = ""  # name of the robot contact surface ("" = the limb's primary one)
 
 
@@ -249,6 +268,76 @@ def _top_normal(axis: np.ndarray) -> np.ndarray:
     return _unit(_perp(WORLD_UP, axis))
 
 
+def is_bar(sf: Any) -> bool:
+    """A rectangular rung (a box of role ``rung``): feet stand across it (``sole_bar``), hands hold
+    it along its axis (local x) like a cylinder when it fits them."""
+    return getattr(sf, "shape", "") == "box" and getattr(sf, "role", "") == "rung"
+
+
+def _along_axis(sf: Any) -> bool:
+    """Holds on ``sf`` are placed along its local x axis (a cylinder or a bar)."""
+    return sf.shape == "cylinder" or is_bar(sf)
+
+
+def bar_section(sf: Any) -> tuple[float, float]:
+    """(depth, thickness) [m] of a box's cross-section across its local x: its size along local y
+    (a rect rung's depth, toward the robot) and local z (its thickness, up)."""
+    h = np.asarray(sf.half_extents, dtype=float)
+    return 2.0 * float(h[1]), 2.0 * float(h[2])
+
+
+def _bar_fields(sf: Any) -> tuple[str, str]:
+    """Spec fields of a bar's depth and thickness, for error messages."""
+    if getattr(sf, "role", "") in ("rung", "tread"):
+        return "ladder.rung.depth", "ladder.rung.thickness"
+    return f"scene.surfaces.{sf.name}.size", f"scene.surfaces.{sf.name}.size"
+
+
+def _bar_roll(params: HoldParams) -> float:
+    return math.radians(params.grasp_palm_angle_bar_deg)
+
+
+def check_grasp_fits(robot: Any, limb: str, sf: Any, robot_surface: str | None = None) -> None:
+    """SpecError unless the hand's grasp can close around ``sf``: a bilateral cylinder, or a
+    bilateral box whose cross-section is within the grasp surface's ``max_bar`` with the palm on
+    the face toward the robot (the bar's depth, local y, away from the palm: ``max_bar.depth``; its
+    thickness, local z, along the palm: ``max_bar.width``). The error names the spec field
+    (``ladder.rung.depth`` / ``ladder.rung.thickness``) and the limit."""
+    rs = limb_surface(robot, limb, robot_surface)
+    name = getattr(sf, "name", "?")
+    bilateral = bool(getattr(sf, "bilateral", True))
+    if sf.shape not in ("cylinder", "box") or not bilateral:
+        raise SpecError("hold.env_surface", f"a hand grasp ({rs.name}) needs a bilateral cylinder or bar (rung, "
+                                            f"rail, bar); {name!r} is a {sf.shape}"
+                                            + ("" if bilateral else ", not bilateral: a hand pushes on it "
+                                               "with its palm"))
+    if sf.shape == "cylinder":
+        return
+    depth, thickness = bar_section(sf)
+    f_depth, f_thick = _bar_fields(sf)
+    if rs.max_bar is None:
+        raise SpecError(f_depth, f"{robot.config.name} {limb} ({rs.name}) closes around cylinders only (its "
+                                 f"config has no limbs.{limb}.surface.max_bar); {name!r} is a "
+                                 f"{depth:.3f} x {thickness:.3f} m rect bar")
+    max_depth, max_width = rs.max_bar
+    where = (f"a {robot.config.name} hand ({rs.name}) closes around rect bars up to {max_depth:.3f} m deep "
+             f"(away from the palm) and {max_width:.3f} m thick (along the palm), limbs.{limb}.surface.max_bar "
+             f"of its config; deeper treads are for feet, the hands hold rails")
+    if depth > max_depth + 1e-9:
+        raise SpecError(f_depth, f"{where}; {name!r} is {depth:.3f} m deep")
+    if thickness > max_width + 1e-9:
+        raise SpecError(f_thick, f"{where}; {name!r} is {thickness:.3f} m thick")
+
+
+def grasp_fits(robot: Any, limb: str, sf: Any) -> bool:
+    """Whether ``limb``'s grasp can close around ``sf`` (:func:`check_grasp_fits` without the error)."""
+    try:
+        check_grasp_fits(robot, limb, sf)
+    except SpecError:
+        return False
+    return True
+
+
 # --------------------------------------------------------------------------------------------
 # target poses
 
@@ -259,7 +348,7 @@ def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: f
                         robot_surface: str | None = None) -> tuple[np.ndarray, str]:
     """(T_world_surface target of the limb's contact surface frame, kind).
 
-    kind: ``grasp`` | ``sole_cylinder`` | ``sole_flat`` | ``palm_cylinder`` | ``palm_flat``.
+    kind: ``grasp`` | ``sole_cylinder`` | ``sole_bar`` | ``sole_flat`` | ``palm_cylinder`` | ``palm_flat``.
     ``R_world_surface_seed`` (optional, the current orientation of the robot surface) picks
     between the two grasp axis directions. robot_surface: the limb's surface (default primary).
     """
@@ -270,13 +359,8 @@ def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: f
     if not math.isfinite(s):
         raise SpecError("hold.s", f"must be finite, got {s}")
     if rs.kind == "grasp":
-        bilateral = bool(getattr(sf, "bilateral", True))
-        if sf.shape != "cylinder" or not bilateral:
-            raise SpecError("hold.env_surface", f"a hand grasp ({rs.name}) needs a bilateral cylinder (rung, "
-                                                f"rail, bar); {surface_name!r} is a {sf.shape}"
-                                                + ("" if bilateral else ", not bilateral: a hand pushes on it "
-                                                   "with its palm"))
-        _check_along(sf, s, surface_name)
+        check_grasp_fits(robot, limb, sf, rs.name)
+        _check_along(sf, s, surface_name, axis_length=_axis_length(sf))
         p0, a = _cylinder_axis(sf)
         centre = p0 + s * a
         # the palm sits on the robot's side of the rung, grasp_palm_angle_deg above the horizontal;
@@ -287,7 +371,7 @@ def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: f
             up = np.cross(a, back)
             up = -up if up[2] < 0.0 else up
         up = _unit(up)
-        ang = math.radians(params.grasp_palm_angle_deg)
+        ang = math.radians(params.grasp_palm_angle_deg) if sf.shape == "cylinder" else _bar_roll(params)
         normal_w = -(math.cos(ang) * back + math.sin(ang) * up)
         axis_s = grasp_axis_in_surface(rs)
         normal_s = _unit(_perp(np.array([0.0, 0.0, 1.0]), axis_s))
@@ -309,15 +393,15 @@ def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: f
     if rs.kind not in ("sole", "palm"):
         raise SpecError(f"robot.{rs.name}.kind", f"unknown contact surface kind {rs.kind!r}")
     sign = sole_normal_sign(robot, limb) if rs.kind == "sole" else 1.0
-    if sf.shape == "cylinder":
-        _check_along(sf, s, surface_name)
+    if sf.shape == "cylinder" or (is_bar(sf) and rs.kind == "sole"):
+        _check_along(sf, s, surface_name, axis_length=_axis_length(sf))
         p0, a = _cylinder_axis(sf)
         n = _top_normal(a)
         fwd = _perp(forward, n)
         fwd = _unit(_perp(fwd, a)) if np.linalg.norm(_perp(fwd, a)) > 1e-9 else _unit(np.cross(a, n))
-        centre = p0 + s * a + n * float(sf.radius) - fwd * params.foot_on_rung_offset
+        centre = p0 + s * a + n * _top_height(sf) - fwd * params.foot_on_rung_offset
         R = _frame_from_zx(-sign * n, fwd)
-        return _pose(R, centre), f"{rs.kind}_cylinder"
+        return _pose(R, centre), (f"{rs.kind}_cylinder" if sf.shape == "cylinder" else "sole_bar")
     if sf.shape in ("plane", "box"):
         top, n, x_axis = _flat_top(sf)
         if sf.shape == "plane":
@@ -338,6 +422,16 @@ def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: f
         R = _frame_from_zx(-sign * n, heading)
         return _pose(R, centre), f"{rs.kind}_flat"
     raise SpecError("hold.env_surface", f"cannot stand on a {sf.shape} ({surface_name!r})")
+
+
+def _axis_length(sf: Any) -> float:
+    """[m] full length of a cylinder or a box along its local x."""
+    return float(sf.length) if sf.shape == "cylinder" else 2.0 * float(np.asarray(sf.half_extents)[0])
+
+
+def _top_height(sf: Any) -> float:
+    """[m] top line / face of a cylinder or a bar above its centre line."""
+    return float(sf.radius) if sf.shape == "cylinder" else float(np.asarray(sf.half_extents)[2])
 
 
 def _check_along(sf: Any, s: float, surface_name: str, axis_length: float | None = None) -> None:
@@ -381,15 +475,27 @@ def make_hold(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0
     if kind == "grasp":
         p0, a = _cylinder_axis(sf)
         centre = T[:3, 3]
-        r = float(sf.radius)
-        u = _top_normal(a)
-        w = np.cross(a, u)
         pts = []
-        for ring, along in enumerate((-0.5 * params.grasp_ring_spacing, 0.5 * params.grasp_ring_spacing)):
-            for k in range(4):
-                ang = 0.5 * math.pi * k + 0.25 * math.pi * ring
-                nrm = math.cos(ang) * u + math.sin(ang) * w
-                pts.append(ContactPoint(centre + along * a + r * nrm, nrm))
+        rings = (-0.5 * params.grasp_ring_spacing, 0.5 * params.grasp_ring_spacing)
+        if sf.shape == "cylinder":
+            r = float(sf.radius)
+            u = _top_normal(a)
+            w = np.cross(a, u)
+            for ring, along in enumerate(rings):
+                for k in range(4):
+                    ang = 0.5 * math.pi * k + 0.25 * math.pi * ring
+                    nrm = math.cos(ang) * u + math.sin(ang) * w
+                    pts.append(ContactPoint(centre + along * a + r * nrm, nrm))
+        else:  # a bar: ring 1 on the 4 face centres of the cross-section, ring 2 on its 4 edges
+            R_sf = np.asarray(sf.T_world_surface)[:3, :3]
+            y, z = R_sf[:, 1], R_sf[:, 2]
+            hy, hz = (float(v) for v in np.asarray(sf.half_extents)[1:])
+            faces = [(hy * y, y), (hz * z, z), (-hy * y, -y), (-hz * z, -z)]
+            edges = [(sy * hy * y + sz * hz * z, _unit(sy * y + sz * z))
+                     for sy, sz in ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))]
+            for ring, (along, offsets) in enumerate(zip(rings, (faces, edges))):
+                for off, nrm in offsets:
+                    pts.append(ContactPoint(centre + along * a + off, nrm))
         grip = float(robot.config.grip_strength if grip_force_limit is None else grip_force_limit)
         if not (math.isfinite(grip) and grip >= 0.0):
             raise SpecError("hold.grip_force_limit", f"must be a non-negative finite force [N], got {grip}")
@@ -397,13 +503,18 @@ def make_hold(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0
             raise SpecError("hold.limb", f"only hands grasp; got {limb!r}")
         return Hold(limb=limb, robot_surface=rs.name, env_surface=surface_name, points=tuple(pts),
                     friction=mu, bilateral=True, grip_force_limit=grip)
-    if kind.endswith("_cylinder"):
+    if kind.endswith("_cylinder") or kind == "sole_bar":
         p0, a = _cylinder_axis(sf)
         n = _top_normal(a)
-        centre_line = p0 + a * float(a @ (T[:3, 3] - p0)) + n * float(sf.radius)
+        centre_line = p0 + a * float(a @ (T[:3, 3] - p0)) + n * _top_height(sf)
         _, width = sole_extent(rs)
         half = 0.5 * (params.foot_on_rung_spacing or width)
-        pts = tuple(ContactPoint(centre_line + sgn * half * a, n) for sgn in (-1.0, 1.0))
+        if kind == "sole_bar":  # the paper's Fig. 6: the 4 corners of the top face under the sole
+            across = np.asarray(sf.T_world_surface)[:3, 1] * float(np.asarray(sf.half_extents)[1])
+            pts = tuple(ContactPoint(centre_line + sa * half * a + sc * across, n)
+                        for sa, sc in ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)))
+        else:
+            pts = tuple(ContactPoint(centre_line + sgn * half * a, n) for sgn in (-1.0, 1.0))
         return Hold(limb=limb, robot_surface=rs.name, env_surface=surface_name, points=pts, friction=mu)
     # flat sole: the corners at the target pose, normal = surface up
     _, n, _ = _flat_top(sf)
@@ -428,10 +539,10 @@ def hold_from_configuration(robot: Any, env: Any, q: np.ndarray, limb: str, surf
     pin.framesForwardKinematics(robot.model, data, np.asarray(q, dtype=float))
     T_wf = data.oMf[robot.frame_id(rs.frame)].homogeneous
     T_ws = T_wf @ np.asarray(rs.T_frame_surface)
-    if sf.shape == "cylinder":
+    if sf.shape == "cylinder" or (is_bar(sf) and rs.kind != "palm"):
         p0, a = _cylinder_axis(sf)
         s = float(a @ (T_ws[:3, 3] - p0))
-        half = 0.5 * float(sf.length)
+        half = 0.5 * _axis_length(sf)
         s = min(max(s, -half), half) if half > 0 else s
         return make_hold(robot, env, limb, surface_name, s, params=params,
                          R_world_surface_seed=T_ws[:3, :3], **kwargs)
@@ -445,11 +556,13 @@ def hold_from_configuration(robot: Any, env: Any, q: np.ndarray, limb: str, surf
 
 
 def hold_kind(robot: Any, env: Any, hold: Hold) -> str:
-    """grasp | sole_cylinder | sole_flat | palm_cylinder | palm_flat."""
+    """grasp | sole_cylinder | sole_bar | sole_flat | palm_cylinder | palm_flat."""
     rs = hold_surface(robot, hold)
     sf = env_surface(env, hold.env_surface)
     if rs.kind == "grasp":
         return "grasp"
+    if rs.kind == "sole" and is_bar(sf):
+        return "sole_bar"
     return f"{rs.kind}_cylinder" if sf.shape == "cylinder" else f"{rs.kind}_flat"
 
 
@@ -466,7 +579,7 @@ def hold_target(robot: Any, env: Any, hold: Hold, *, params: HoldParams | None =
     sf = env_surface(env, hold.env_surface)
     kind = hold_kind(robot, env, hold)
     params = params or HoldParams()
-    if kind == "grasp" or kind.endswith("_cylinder"):
+    if kind == "grasp" or kind.endswith("_cylinder") or kind == "sole_bar":
         p0, a = _cylinder_axis(sf)
         s = float(a @ (hold.centre - p0))
         T, _ = surface_target_pose(robot, env, hold.limb, hold.env_surface, s, params=params,

@@ -101,6 +101,10 @@ class ContactSurface:
     length: float  # grasp cylinder length [m] (0 for polygons)
     axis: np.ndarray  # grasp cylinder axis in `frame` (unit); zero for polygons
     T_frame_surface: np.ndarray  # 4x4 surface frame in `frame` (z = contact normal out of the robot)
+    # grasp only: the largest rectangular bar the closed hand goes around [m], (depth along the
+    # contact normal, i.e. away from the palm; width along the palm across the finger axes); None
+    # = the hand closes around cylinders only (config ``max_bar: {depth, width}``)
+    max_bar: tuple[float, float] | None = None
 
     @property
     def centre(self) -> np.ndarray:
@@ -582,7 +586,7 @@ def _parse_surface(limb: str, raw: Any, s_path: str, frame: str) -> ContactSurfa
     if kind == "palm":
         return _parse_palm(s, s_path, name, frame)
 
-    _mapping(s, s_path, ("name", "kind", "centre", "axis", "normal", "radius", "length"),
+    _mapping(s, s_path, ("name", "kind", "centre", "axis", "normal", "radius", "length", "max_bar"),
              required=("centre", "axis", "normal", "radius", "length"))
     centre = _vector(s["centre"], f"{s_path}.centre")
     axis = _unit(s["axis"], f"{s_path}.axis")
@@ -594,8 +598,17 @@ def _parse_surface(limb: str, raw: Any, s_path: str, frame: str) -> ContactSurfa
     T = np.eye(4)
     T[:3, 0], T[:3, 1], T[:3, 2] = axis, np.cross(normal, axis), normal
     T[:3, 3] = centre
+    max_bar = None
+    if s.get("max_bar") is not None:
+        mb = _mapping(s["max_bar"], f"{s_path}.max_bar", ("depth", "width"), required=("depth", "width"))
+        max_bar = (_number(mb["depth"], f"{s_path}.max_bar.depth", positive=True),
+                   _number(mb["width"], f"{s_path}.max_bar.width", positive=True))
+        if max_bar[0] < 2.0 * radius or max_bar[1] < 2.0 * radius:
+            raise SpecError(f"{s_path}.max_bar", f"must be at least the grasp cylinder's diameter "
+                                                 f"({2.0 * radius} m): a hand around that cylinder goes around "
+                                                 "a bar as deep and wide")
     return ContactSurface(name, frame, kind, _frozen_array(np.zeros((0, 3))), radius, length,
-                          _frozen_array(axis), _frozen_array(T))
+                          _frozen_array(axis), _frozen_array(T), max_bar)
 
 
 def _parse_palm(s: dict, s_path: str, name: str, frame: str) -> ContactSurface:

@@ -80,11 +80,11 @@ def accepting_surfaces(robot: Any, env: Any, limb: str) -> list[Any]:
     the environment's order, that it has a robot surface for (:func:`climb_core.holds.robot_surface_for`:
     a foot its sole; a hand closes its grasp around a bilateral surface - a bilateral contact, a
     grip limit instead of a friction cone - and pushes with its palm on any other). A grasp needs a
-    cylinder."""
+    cylinder or a rect bar that fits the hand (:func:`climb_core.holds.grasp_fits`)."""
     out = []
     for sf in env.contact_surfaces(limb_type(limb)):
         rs = holds_mod.robot_surface_for(robot, limb, sf, required=False)
-        if rs is None or (rs.kind == "grasp" and sf.shape != "cylinder"):
+        if rs is None or (rs.kind == "grasp" and not holds_mod.grasp_fits(robot, limb, sf)):
             continue
         out.append(sf)
     return out

@@ -1,7 +1,7 @@
 """Grasps as force-limited constraints (the documented modelling assumption, docs/sim_bridge.md).
 
 A CLOSE request on a hand whose grasp centre is within the robot's ``capture_range`` of a rung or
-rail axis latches the grasp: a PyBullet fixed constraint between the hand's surface link and the
+rail axis (a rect rung's centre line, when the bar fits the hand) latches the grasp: a PyBullet fixed constraint between the hand's surface link and the
 rung body, anchored on the axis (``grasp.snap_to_axis``) with the hand's current orientation.
 The grip strength bounds the norm of the grasp's force: PyBullet caps each constraint row
 separately (one ``maxForce`` for every row), which alone would let a diagonal load through up to
@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from climb_core import holds
 
 from . import frames
 from .params import GraspParams
@@ -53,12 +55,14 @@ class GraspManager:
     # -- geometry -----------------------------------------------------------------------------
     def nearest_axis_point(self, hand: str) -> tuple[str, np.ndarray, float]:
         """(surface name, closest point on its axis segment [m], distance [m]) over every rung and
-        rail; ("", centre, inf) when the ladder has none."""
+        rail the hand closes around (a round one, or a rect bar within the hand's ``max_bar``:
+        ``climb_core.holds.grasp_fits``; the axis of a bar is its centre line); ("", centre, inf)
+        when the ladder has none."""
         b = self.backend
         centre = b.surface_pose(hand)[:3, 3]
         best = ("", centre, float("inf"))
         for name, surface in b.env.surfaces.items():
-            if surface.role not in GRASPABLE_ROLES or surface.shape != "cylinder":
+            if surface.role not in GRASPABLE_ROLES or not holds.grasp_fits(b.robot, hand, surface):
                 continue
             T = b.surface_frame(name)
             axis = T[:3, 0]
