@@ -30,6 +30,7 @@ from typing import Sequence
 import numpy as np
 import pinocchio as pin
 
+from climb_core import holds as holds_mod
 from climb_core.contact import FEET, HANDS, Hold, Stance
 from climb_core.errors import SpecError
 
@@ -77,7 +78,8 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
     """World poses [4x4] of the moving limb's surface at the way-points and each one's path
     fraction in (0, 1) (arc length of the cue polyline from q_s to q_e): the lift-off (a held
     limb), then - when the front point is farther back than the lift-off - straight back to its
-    distance at the lift-off height (a foot clears the rung above before rising), the carry
+    distance at the lift-off height (a foot clears the rung above before rising), - a foot going
+    onto a higher flat surface (a step) - straight up to the front point's height, the carry
     toward the front point (``carry_backoff`` behind the approach point, horizontally toward
     where the limb comes from), and the approach point on the new hold's normal. The orientation
     turns from the start's to the end's along the way (the lift-off keeps the start's, the
@@ -93,7 +95,7 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
     back = p_s - p_e  # horizontal, toward where the limb comes from (across a bar: no sideways swing)
     back[2] = 0.0
     target = ctx.env.surfaces.get(new.env_surface)
-    if target is not None and target.shape == "cylinder":
+    if target is not None and (target.shape == "cylinder" or holds_mod.is_bar(target)):  # a rung, round or rect
         back = back - float(back @ target.axis) * target.axis
     nb = float(np.linalg.norm(back))
     b = back / nb if nb > 1e-6 else np.zeros(3)
@@ -103,6 +105,12 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
     behind = float((front - start) @ b)
     if behind > 1e-3:  # back off to the front point's distance first, at the lift-off height
         start = start + behind * b
+        points.append(start)
+    rise = float(front[2] - start[2])
+    if target is not None and target.shape != "cylinder" and limb in FEET and rise > p.lift_clearance:
+        # onto a higher flat surface (a step, a tread): straight up to the front point's height
+        # first, so that the toes clear the edge before the foot moves over it
+        start = start + np.array([0.0, 0.0, rise])
         points.append(start)
     k = p.carry_waypoints
     points += [start + (i / k) * (front - start) for i in range(1, k + 1)] + [approach]
