@@ -36,6 +36,11 @@ def test_default_table_routes_hands_and_feet_differently(table_doc):
     assert table.next_state("transfer", "contact", "left_hand") == "close_gripper"
     assert table.next_state("transfer", "contact", "right_foot") == "load"
     assert table.next_state("search", "exhausted", "right_foot") == "replan_needed"
+    # a hand pushing with its palm (unilateral hold) has no gripper states
+    assert table.next_state("unload", "unloaded", "right_hand", "palm") == "transfer"
+    assert table.next_state("transfer", "contact", "left_hand", "palm") == "load"
+    assert table.next_state("search", "contact", "left_hand", "palm") == "load"
+    assert table.next_state("search", "exhausted", "left_hand", "palm") == "replan_needed"
     # the wildcard row: a QP failure leads to the failure state from anywhere
     for state in table.states:
         assert table.next_state(state, "qp_failure", "left_hand") == "failure"
@@ -51,6 +56,8 @@ def test_default_table_routes_hands_and_feet_differently(table_doc):
     (lambda d: d["states"].update(dance="not a state class"), "states.dance"),
     (lambda d: d.update(typo=1), "typo"),
     (lambda d: d.__setitem__("transitions", [r for r in d["transitions"] if r["event"] != "closed"]), "transitions"),
+    # a table without the palm rows: a palm push's contact would have nowhere to go
+    (lambda d: d.__setitem__("transitions", [r for r in d["transitions"] if r.get("limb") != "palm"]), "transitions"),
 ])
 def test_bad_tables_are_rejected_naming_the_field(table_doc, mutate, field):
     doc = copy.deepcopy(table_doc)

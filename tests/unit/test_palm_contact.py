@@ -1,7 +1,10 @@
-"""Unilateral palm contacts (issue 17): G1's palm surfaces, a palm pushing on narrow_passage's
-palm block through the physics-constrained IK and the core feasibility check, and the rule that
-a hand grasps only bilateral surfaces and cannot pull with its palm."""
+"""Unilateral hand contacts (issue 17): G1's push surfaces (kind ``palm``: the back of the hand, as
+the Dex3 thumb stands proud of the palm face), a hand pushing on narrow_passage's palm block
+through the physics-constrained IK and the core feasibility check, and the rule that a hand
+grasps only bilateral surfaces and cannot pull with its push surface."""
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pinocchio as pin
@@ -26,45 +29,57 @@ def passage():
     return build_environment("narrow_passage")
 
 
-def _palm_hull_in_frame(robot, side: str) -> np.ndarray:
-    """Vertices (n, 3) of the palm link's collision hull (coal Convex) in the palm link frame."""
-    frame = robot.model.frames[robot.frame_id(f"{side}_hand_palm_link")]
-    for g in robot.collision_model.geometryObjects:
-        if g.name == f"{side}_hand_palm_link_0":
-            pts = np.array([g.geometry.points(i) for i in range(g.geometry.num_points)])
-            M = frame.placement.inverse() * g.placement  # geometry placement is in the parent joint frame
-            return pts @ M.rotation.T + M.translation
-    raise AssertionError(f"no hull for {side}_hand_palm_link")
+def _hand_hulls_in_palm_frame(robot, side: str) -> dict[str, np.ndarray]:
+    """Collision hull vertices (n, 3) of every link of the hand (palm, fingers and thumb at the
+    locked posture, from the full URDF) in the palm link frame."""
+    full, geom = robot.full_model, robot.full_collision_model
+    data = full.createData()
+    gdata = pin.GeometryData(geom)
+    pin.forwardKinematics(full, data, pin.neutral(full))
+    pin.updateFramePlacements(full, data)
+    pin.updateGeometryPlacements(full, data, geom, gdata)
+    T_palm = data.oMf[full.getFrameId(f"{side}_hand_palm_link")]
+    out = {}
+    for i, g in enumerate(geom.geometryObjects):
+        if g.name.startswith(f"{side}_hand_") and hasattr(g.geometry, "num_points"):
+            pts = np.array([g.geometry.points(k) for k in range(g.geometry.num_points)])
+            M = T_palm.inverse() * gdata.oMg[i]
+            out[g.name] = pts @ M.rotation.T + M.translation
+    return out
 
 
 @pytest.mark.parametrize("side", ["left", "right"])
-def test_g1_palm_lies_on_the_palm_face(g1, side):
+def test_g1_push_surface_is_the_back_of_the_hand(g1, side):
     limb = g1.config.limbs[f"{side}_hand"]
-    palm, grasp = limb.surfaces[f"{side}_palm"], limb.surface
-    assert grasp.kind == "grasp" and palm.kind == "palm" and palm.frame == f"{side}_hand_palm_link"
-    assert list(limb.surfaces) == [f"{side}_grasp", f"{side}_palm"]
-    n, c = palm.normal, palm.centre
-    assert np.allclose(n, grasp.normal)  # out of the palm, the side the fingers close toward
-    hull = _palm_hull_in_frame(g1, side)
+    back, grasp = limb.surfaces[f"{side}_hand_back"], limb.surface
+    assert grasp.kind == "grasp" and back.kind == "palm" and back.frame == f"{side}_hand_palm_link"
+    assert list(limb.surfaces) == [f"{side}_grasp", f"{side}_hand_back"]
+    n, c = back.normal, back.centre
+    assert np.allclose(n, -grasp.normal)  # out of the back of the hand
+    hulls = _hand_hulls_in_palm_frame(g1, side)
+    hull = hulls[f"{side}_hand_palm_link_0"]
     height = (hull - c) @ n  # signed height of every hull vertex above the polygon's plane
-    assert height.max() <= 1e-4  # the whole hull is on the robot side of the plane ...
-    assert height.max() >= -1e-4  # ... and the plane touches it
-    assert float((hull.mean(axis=0) - c) @ n) < -0.01  # the normal points away from the hand
+    assert abs(height.max()) <= 1e-4  # the plane touches the palm link's hull, which is all behind it
+    # nothing of the hand (fingers, thumb) stands beyond the plane: a flat surface meets the back
+    # of the hand first. (On the palm side the thumb stands >= 29 mm proud of the palm face.)
+    for name, pts in hulls.items():
+        assert ((pts - c) @ n).max() <= 1e-4, f"{name} passes the push plane"
+    assert max(((pts - c) @ -n).max() for name, pts in hulls.items() if "thumb" in name) > 0.029 + 0.04
     # every corner lies on the hull's face: inside the outline of its vertices within 2 mm of the plane
-    corners = palm.vertices
+    corners = back.vertices
     assert np.allclose((corners - c) @ n, 0.0, atol=1e-9)
     face = hull[height > height.max() - 2e-3]
-    e1 = palm.T_frame_surface[:3, 0]
+    e1 = back.T_frame_surface[:3, 0]
     e2 = np.cross(n, e1)
     outline = Delaunay(np.column_stack([(face - c) @ e1, (face - c) @ e2]))
     assert (outline.find_simplex(np.column_stack([(corners - c) @ e1, (corners - c) @ e2])) >= 0).all()
     area = np.linalg.norm(np.cross(corners[1] - corners[0], corners[3] - corners[0]))
-    assert 1e-3 < area < 6e-3  # [m^2] palm-sized (Dex3 palm link 0.087 x 0.088 m)
+    assert 1e-3 < area < 6e-3  # [m^2] hand-sized (Dex3 palm link 0.087 x 0.088 m)
 
 
 def test_rule_grasp_on_bilateral_palm_elsewhere(g1, env, passage):
     block, rung = passage.surfaces["palm_block"], env.surfaces["rung_3"]
-    assert holds.hand_surface_for(g1, "right_hand", block).name == "right_palm"
+    assert holds.hand_surface_for(g1, "right_hand", block).name == "right_hand_back"
     assert holds.hand_surface_for(g1, "right_hand", rung).name == "right_grasp"
     assert holds.robot_surface_for(g1, "left_foot", block).name == "left_sole"
     with pytest.raises(SpecError) as err:  # talos has no palm: it cannot push on the block
@@ -94,8 +109,9 @@ def _seed(robot) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def palm_push(g1, passage):
-    """Left foot on the floor, right foot lifted 2 cm over the step (zero force), right palm
-    floating on the block; the CoM target between the foot and the block loads the palm."""
+    """Left foot on the floor, right foot lifted 2 cm over the step (zero force), the right hand
+    floating onto the block (the IK picks its hold), then pushing on it: the CoM target between
+    the foot and the block loads the hand."""
     hp = feasibility.load_config().holds
     left = holds.make_hold(g1, passage, "left_foot", "floor", position=np.array([2.2, 0.15, 0.12]), yaw=0.0,
                            params=hp)
@@ -107,7 +123,13 @@ def palm_push(g1, passage):
                 pcik.ContactSpec("right_foot", pcik.ZERO_FORCE, pose=T_right),
                 pcik.ContactSpec("right_hand", pcik.FLOATING, surface="palm_block",
                                  preferred_position=np.array([2.25, -0.27, BLOCK_TOP_Z]))]
-    res = pcik.solve(g1, passage, _seed(g1), contacts, params=load_settings().pcik, com_target=np.array([2.2, 0.0]))
+    found = pcik.solve(g1, passage, _seed(g1), contacts, params=load_settings().pcik)
+    assert found.success, pcik.describe_failure(found)
+    # the hand found its hold with zero force (the CoM over the left sole); now it carries load:
+    # the hold regular, the CoM pulled between the left sole and the block
+    contacts[2] = pcik.ContactSpec("right_hand", pcik.REGULAR, hold=found.holds["right_hand"])
+    params = dataclasses.replace(load_settings().pcik, com_weight=1000.0)
+    res = pcik.solve(g1, passage, found.q, contacts, params=params, com_target=np.array([2.2, 0.0]))
     assert res.success, pcik.describe_failure(res)
     return res, left
 
@@ -123,17 +145,17 @@ def test_palm_pushes_on_the_block_with_a_tenth_of_the_weight(g1, passage, palm_p
     res, left = palm_push
     palm = res.holds["right_hand"]
     assert (palm.robot_surface, palm.env_surface, palm.bilateral, len(palm.points)) == \
-        ("right_palm", "palm_block", False, 4)
+        ("right_hand_back", "palm_block", False, 4)
     # forward kinematics: the palm polygon lies on the block's top face, its normal into the block
     data = g1.model.createData()
     pin.framesForwardKinematics(g1.model, data, res.q)
-    rs = g1.config.limbs["right_hand"].surfaces["right_palm"]
+    rs = g1.config.limbs["right_hand"].surfaces["right_hand_back"]
     T_frame = data.oMf[g1.frame_id(rs.frame)].homogeneous
     corners = rs.vertices @ T_frame[:3, :3].T + T_frame[:3, 3]
     assert np.abs(corners[:, 2] - BLOCK_TOP_Z).max() < 2e-3
     assert (corners[:, 0] > BLOCK_X[0]).all() and (corners[:, 0] < BLOCK_X[1]).all()
     assert (corners[:, 1] > BLOCK_Y[0]).all() and (corners[:, 1] < BLOCK_Y[1]).all()
-    assert (T_frame @ rs.T_frame_surface)[2, 2] < -np.cos(np.radians(3.0))  # palm normal points down
+    assert (T_frame @ rs.T_frame_surface)[2, 2] < -np.cos(np.radians(3.0))  # push normal points down
     sole = g1.T_world_surface("right_foot", res.q)[2, 3]
     assert 0.01 < sole - 0.45 < 0.03  # the right foot is over the step, unloaded
     # the frozen core check on the stance left foot + right palm, collisions included
@@ -155,20 +177,22 @@ def test_a_palm_cannot_pull(g1, passage, palm_push):
     data = g1.model.createData()
     pin.framesForwardKinematics(g1.model, data, res.q)
     base = data.oMf[g1.frame_id(pelvis.name)].translation
-    load = np.array([0.0, 0.0, -100.0])  # [N] a 10 kg mass rigidly carried 0.4 m beside the pelvis
 
-    def with_load(side: float) -> feasibility.FeasibilityResult:
-        point = base + np.array([0.0, side * 0.4, 0.0])
+    def with_load(side: float, newtons: float) -> feasibility.FeasibilityResult:
+        """A mass rigidly carried ``side`` m beside the pelvis (toward the block: negative)."""
+        point = base + np.array([0.0, side, 0.0])
         return feasibility.check_equilibrium(g1, res.q, stance, env=passage,
-                                             external_forces=[(pelvis.name, point, load)])
+                                             external_forces=[(pelvis.name, point, np.array([0.0, 0.0, -newtons]))])
 
-    # on the block's side the palm pushes harder ...
+    # on the block's side the hand pushes harder (4 kg; at 10 kg the wrist joints pass their
+    # torque limits: the push goes through the wrist) ...
     unloaded = feasibility.check_equilibrium(g1, res.q, stance, env=passage)
-    toward = with_load(-1.0)
+    toward = with_load(-0.4, 40.0)
     assert toward.feasible, toward.summary()
     assert _palm_forces(toward, palm)[0].sum() > _palm_forces(unloaded, palm)[0].sum() + 10.0
-    # ... on the far side, beyond the left sole, only a pull on the palm would hold the robot
-    away = with_load(+1.0)
+    # ... on the far side (30 kg 0.5 m out: the whole CoM beyond the left sole's outer edge), only
+    # a pull on the hand would hold the robot
+    away = with_load(+0.5, 300.0)
     assert not away.feasible and set(away.violated) & {"equilibrium", "friction"}, away.violated
     # and a palm hold cannot be declared bilateral
     pulling = Hold(palm.limb, palm.robot_surface, palm.env_surface, palm.points, palm.friction, bilateral=True,

@@ -18,7 +18,7 @@ from climb_core.ladder import load_scenario, parse_scenario
 from climb_core.robot import load_robot
 from climb_core.scene import require_search_strategy
 
-SCENES = ("car_ingress", "narrow_passage", "stairs_handrail")
+SCENES = ("car_ingress", "narrow_passage", "narrow_passage_step", "stairs_handrail")
 #: [m] smallest robot-environment clearance accepted for G1 standing (its knee hulls are 0.033 m
 #: above the sole's support plane at the reference posture).
 CLEARANCE = 0.02

@@ -227,6 +227,12 @@ class RobotModel:
 
     # -- public API ----------------------------------------------------------------------------
     @property
+    def full_model(self) -> "pin.Model":
+        """The full URDF's kinematic model (free-flyer, finger joints kept), for
+        :attr:`full_collision_model`."""
+        return self._full_model
+
+    @property
     def full_collision_model(self) -> "pin.GeometryModel":
         """Collision geometry (hulls, foot boxes) of the full URDF, finger joints kept: the
         simulator's URDF is written from it (sim_bridge.sim_urdf)."""

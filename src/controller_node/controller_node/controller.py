@@ -34,7 +34,7 @@ from climb_core.ros_env import project_root
 from .compliance import ComplianceLaw, MotorArrays, PwmGainArrays
 from .constraints import ActiveContact, CollisionAvoidance, contact_from_hold
 from .estimator import RobotState
-from .fsm import Fsm, FsmTable, load_fsm_table
+from .fsm import Fsm, FsmTable, limb_kind, load_fsm_table
 from .params import ControllerParams
 from .qp import QpFailure, save_problem
 from .reference import PathReference
@@ -175,6 +175,7 @@ class Controller:
         self.transition_index = -1
         self.transition: Transition | None = None
         self.moving_limb = ""
+        self.moving_kind = ""  # fsm.limb_kind of the moving limb and its hold (hand / palm / foot)
         self.target_surface = ""
         self.reference: PathReference | None = None
         self._path_start = 0.0
@@ -258,6 +259,7 @@ class Controller:
         self.transition = None
         self.transition_index = -1
         self.moving_limb = ""
+        self.moving_kind = ""
         self.replan_needed = False
         self.replan_reason = ""
         self.placement_offset = None
@@ -293,7 +295,7 @@ class Controller:
         before = self.fsm.state
         if before == "failure":
             raise HoldRefused("in failure: the fallback already holds; send the reset event first")
-        if self.table.next_state(before, "hold", self.moving_limb) is None:
+        if self.table.next_state(before, "hold", self.moving_limb, self.moving_kind) is None:
             raise HoldRefused(f"the FSM table has no row for the event hold from {before!r}")
         contacts, holds = dict(self.contacts), dict(self.holds)
         limb = self.moving_limb
@@ -315,6 +317,7 @@ class Controller:
         self.transition = None
         self.transition_index = -1
         self.moving_limb = ""
+        self.moving_kind = ""
         self.target_surface = ""
         self.replan_needed = False
         self.hold_here()
@@ -755,11 +758,15 @@ class Controller:
         if self.transition_index >= len(self.plan.transitions):
             self.transition = None
             self.moving_limb = ""
+            self.moving_kind = ""
             return None
         self.transition = self.plan.transitions[self.transition_index]
         self.moving_limb = self.transition.moving_limb
         hold = self.transition.target_stance.hold(self.moving_limb) if self.moving_limb else None
         self.target_surface = hold.env_surface if hold is not None else ""
+        # the hold made (add) or broken (remove): a hand's palm push has no gripper states
+        made_or_broken = hold if hold is not None else self.holds.get(self.moving_limb)
+        self.moving_kind = limb_kind(self.moving_limb, made_or_broken) if self.moving_limb else ""
         self.emit("transition_started", index=self.transition_index, primitive=self.transition.primitive,
                   limb=self.moving_limb)
         return self.transition

@@ -25,11 +25,17 @@ from climb_core.errors import SpecError
 from climb_core.ros_env import project_root
 
 ANY_STATE = "*"
-LIMB_KINDS = ("hand", "foot")
+#: what a table row's ``limb`` may restrict it to: a hand that grasps (bilateral hold: gripper
+#: states), a hand that pushes with its palm (unilateral hold: no gripper), a foot
+LIMB_KINDS = ("hand", "palm", "foot")
 
 
-def limb_kind(limb: str) -> str:
-    return "hand" if limb in HANDS else "foot"
+def limb_kind(limb: str, hold: Hold | None = None) -> str:
+    """``foot``; for a hand, ``palm`` when the hold it makes or breaks is unilateral (a palm push),
+    else ``hand`` (a grasp, or no hold known)."""
+    if limb not in HANDS:
+        return "foot"
+    return "palm" if hold is not None and not hold.bilateral else "hand"
 
 
 @dataclass(frozen=True)
@@ -37,7 +43,7 @@ class TableRow:
     source: str
     event: str
     target: str
-    limb: str = ""  # "" | hand | foot
+    limb: str = ""  # "" | hand | palm | foot
 
 
 @dataclass(frozen=True)
@@ -46,8 +52,11 @@ class FsmTable:
     states: dict[str, str]  # name -> description
     rows: tuple[TableRow, ...]
 
-    def next_state(self, state: str, event: str, moving_limb: str = "") -> str | None:
-        kind = limb_kind(moving_limb) if moving_limb else ""
+    def next_state(self, state: str, event: str, moving_limb: str = "", kind: str = "") -> str | None:
+        """The row's target for ``event`` in ``state`` (rows of ``state`` first, then ``*``).
+        ``kind`` (:data:`LIMB_KINDS`) is the moving limb's; default: :func:`limb_kind` of the limb
+        alone (a hand grasps)."""
+        kind = kind or (limb_kind(moving_limb) if moving_limb else "")
         for rows in (r for r in self.rows if r.source == state), (r for r in self.rows if r.source == ANY_STATE):
             for row in rows:
                 if row.event == event and (not row.limb or row.limb == kind):
@@ -98,10 +107,10 @@ def parse_fsm_table(data: Any, source: str = "fsm") -> FsmTable:
     # every event a state can raise must lead somewhere (for every limb kind it can occur with)
     for name in states:
         for event in STATE_CLASSES[name].events:
-            for kind in ("hand", "foot"):
-                limb = "left_hand" if kind == "hand" else "left_foot"
+            for kind in LIMB_KINDS:
+                limb = "left_foot" if kind == "foot" else "left_hand"
                 table = FsmTable(initial, dict(states), tuple(rows))
-                if table.next_state(name, event, limb) is None:
+                if table.next_state(name, event, limb, kind) is None:
                     raise SpecError(f"{source}.transitions", f"state {name!r} raises {event!r} ({kind}) "
                                                              "but no row handles it")
     return FsmTable(str(initial), {str(k): str(v) for k, v in states.items()}, tuple(rows))
@@ -125,6 +134,7 @@ class Context(Protocol):
     params: Any  # ControllerParams
     transition: Transition | None  # the plan transition being executed
     moving_limb: str  # its moving limb ("" for a CoM shift)
+    moving_kind: str  # limb_kind of the moving limb and the hold it makes or breaks ("" for a CoM shift)
     target_surface: str  # the environment surface the moving limb goes to
     plan_pending: bool  # a new plan arrived
     replan_needed: bool
@@ -245,7 +255,7 @@ class UnloadState(State):
         return "unloaded" if ctx.release_done(ctx.moving_limb) else None
 
     def teardown(self, ctx: Context) -> None:
-        if limb_kind(ctx.moving_limb) == "foot":
+        if ctx.moving_kind != "hand":  # a grasp leaves the set when its gripper has opened
             ctx.remove_contact(ctx.moving_limb)
 
 
@@ -265,6 +275,8 @@ class OpenGripperState(State):
 
 class TransferState(State):
     """Add contact: the contact-body task follows the way-points; the F/T guards the approach.
+    A transition whose target stance has no hold for the moving limb frees it: the path is
+    followed without a guard, then ``freed``.
 
     The limb's F/T is tared when the last path segment (the approach) begins, and watched from
     ``guarded.settle_time_s`` later: a force against the approach direction above
@@ -273,7 +285,7 @@ class TransferState(State):
     finished)."""
 
     name = "transfer"
-    events = ("contact", "path_end")
+    events = ("contact", "path_end", "freed")
 
     def start(self, ctx: Context) -> None:
         limb = ctx.moving_limb
@@ -281,12 +293,19 @@ class TransferState(State):
             ctx.remove_contact(limb)
         ctx.start_path(ctx.transition, limb)  # the damper of (limb, target surface) goes off on
         # the last path segment (the approach), see Controller.track_path
-        if limb in HANDS:
+        if ctx.moving_kind == "palm":  # a palm push: fingers straight, out of the palm's way
+            ctx.gripper(limb, "open")
+        elif limb in HANDS:
             ctx.gripper(limb, "position", ctx.params.gripper.pregrasp_position)
         self.tared_at = None
 
     def run(self, ctx: Context) -> str | None:
         done = ctx.track_path()
+        if moving_hold(ctx.transition) is None:  # the limb leaves its hold for good: no contact to find
+            if done:
+                ctx.finish_transition()
+                return "freed"
+            return None
         g = ctx.params.guarded
         if self.tared_at is None and ctx.in_approach(g.approach_arm_fraction):
             ctx.tare_ft(ctx.moving_limb)
@@ -406,7 +425,7 @@ class Fsm:
 
     def fire(self, ctx: Context, event: str) -> bool:
         """Apply ``event`` now; False when the table has no row for it in the current state."""
-        target = self.table.next_state(self.current.name, event, ctx.moving_limb)
+        target = self.table.next_state(self.current.name, event, ctx.moving_limb, ctx.moving_kind)
         if target is None:
             return False
         self.history.append((ctx.time, self.current.name, event, target))
@@ -420,7 +439,7 @@ class Fsm:
             # half set up for the next tick: the FSM holds the active contacts, then the error
             # goes on to the caller (reported there)
             failed = self.current.name
-            hold = self.table.next_state(failed, "hold", ctx.moving_limb)
+            hold = self.table.next_state(failed, "hold", ctx.moving_limb, ctx.moving_kind)
             if hold is not None and hold != failed:
                 self.history.append((ctx.time, failed, "hold", hold))
                 self.current = self.states[hold]

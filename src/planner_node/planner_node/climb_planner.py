@@ -227,7 +227,7 @@ class ContactStep:
     None) a generic contact-body path (:mod:`planner_node.contact_path`)."""
 
     name: str
-    kind: str  # limb | com | release
+    kind: str  # limb | com | release | free
     primitive: Primitive | None
     limb: str
     hold: Any  # the new hold (limb), None otherwise
@@ -250,8 +250,8 @@ def _surface_kind(surface: str) -> str:
 
 def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[ContactStep]:
     """Sub-tasks for a contact plan: one per consecutive stance pair (SpecError when a pair changes
-    more than one hold). A pair no library primitive fits (a surface other than the ground or a
-    rung, an empty library) gets a generic step (``primitive`` None). A released limb stays held
+    more than one hold). A pair no library primitive fits (a hold left or made on a surface other
+    than the ground or a rung, an empty library) gets a generic step (``primitive`` None). A released limb stays held
     (the controller releases it when it moves next): its release is a CoM shift ending with the
     limb removable, and its next placement moves it from that hold."""
     import dataclasses as dc
@@ -273,18 +273,28 @@ def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[Con
         limb = changes[i]
         nxt = changes[i + 1] if i + 1 < len(changes) else ""
         unload_next = (nxt,) if nxt and (b.hold(nxt) is not None or nxt in released) else ()
+        ladder_stances = all(_surface_kind(h.env_surface) for st in (a, b) for h in st.holds)
         if not limb:
-            com = [p for p in library.primitives.values() if p.kind == "com"]
+            # the library's CoM shift is a ladder move: only between holds on the ground or rungs
+            com = [p for p in library.primitives.values() if p.kind == "com"] if ladder_stances else []
             prim = dc.replace(com[0], end_unload=()) if com else None
             steps.append(ContactStep(f"com_{i}", "com", prim, "", None, q_end, () if com else unload_next))
             continue
         new = b.hold(limb)
+        if new is None and not any(changes[k] == limb and plan.stances[k + 1].hold(limb) is not None
+                                   for k in range(i + 1, len(changes))):
+            # released for good (a hand off the block once the feet are up): the limb leaves its
+            # hold and stays free
+            steps.append(ContactStep(f"free_{limb}_{i}", "free", None, limb, None, q_end))
+            continue
         if new is None:
             released[limb] = a.hold(limb)
             steps.append(ContactStep(f"release_{limb}_{i}", "release", None, limb, None, q_end, (limb,)))
             continue
         previous = a.hold(limb) or released.pop(limb, None)
-        surface = _surface_kind(new.env_surface)
+        # a primitive moves a limb from the ground or a rung onto the ground or a rung (a ladder
+        # library's cycle); from a step, a block or a wall the move is generic
+        surface = _surface_kind(new.env_surface) if previous is None or _surface_kind(previous.env_surface) else ""
         want_type = "mount" if previous is None and limb in HANDS else None
         cands = [p for p in library.primitives.values() if p.kind == "limb" and p.limb == limb and surface
                  and p.target.surface == surface and (want_type is None or p.type == want_type)]
@@ -303,6 +313,8 @@ def _adapt_contact_step(ctx: AdaptContext, step: ContactStep, state: ClimbState,
     from . import contact_path
 
     try:
+        if step.kind == "free":
+            return contact_path.free_step(ctx, state, step.limb, step.q_end, attempt, rng, step.name)
         if step.primitive is None and step.kind == "limb":
             return contact_path.transfer_step(ctx, state, step.limb, step.hold, step.q_end, attempt, rng, step.name)
         if step.primitive is None:  # a generic CoM shift, or a release (the CoM onto the other holds)

@@ -14,6 +14,8 @@ its primitives' paths (III-C, Algorithm 1 and the projected interpolation):
   retracted from collisions (:func:`planner_node.adapt._retract`). The path between the way-points
   is projected onto the kept stance's contact manifold and fine-checked
   (:func:`planner_node.adapt.build_path`); the end configuration has the limb on its new hold.
+- **limb freed** (:func:`free_step`): a limb no later stance holds again is lifted off its hold
+  and left free, the robot in equilibrium on the other holds.
 - **CoM shift** (:func:`com_step`, also a contact plan's *release*): all holds kept, the end
   configuration in equilibrium without the limb that moves next. The controller's FSM releases
   that limb when it executes the next transition (select -> remove -> unload), as for ladder plans.
@@ -79,7 +81,8 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
     fraction in (0, 1) (arc length of the cue polyline from q_s to q_e): the lift-off (a held
     limb), then - when the front point is farther back than the lift-off - straight back to its
     distance at the lift-off height (a foot clears the rung above before rising), - a foot going
-    onto a higher flat surface (a step) - straight up to the front point's height, the carry
+    onto a higher flat surface (a step) - straight up to the front point's height (down onto a lower
+    one: the front point is over the approach point, at the lift-off height), the carry
     toward the front point (``carry_backoff`` behind the approach point, horizontally toward
     where the limb comes from), and the approach point on the new hold's normal. The orientation
     turns from the start's to the end's along the way (the lift-off keeps the start's, the
@@ -107,11 +110,17 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
         start = start + behind * b
         points.append(start)
     rise = float(front[2] - start[2])
-    if target is not None and target.shape != "cylinder" and limb in FEET and rise > p.lift_clearance:
+    flat_foot = target is not None and target.shape != "cylinder" and limb in FEET
+    if flat_foot and rise > p.lift_clearance:
         # onto a higher flat surface (a step, a tread): straight up to the front point's height
         # first, so that the toes clear the edge before the foot moves over it
         start = start + np.array([0.0, 0.0, rise])
         points.append(start)
+    elif flat_foot and float(approach[2] - start[2]) < -p.lift_clearance:
+        # down onto a lower flat surface (off a step): over the approach point at the lift-off
+        # height, then straight down onto it (a carry backed off toward the step would cut
+        # through its edge)
+        front = np.array([approach[0], approach[1], start[2]])
     k = p.carry_waypoints
     points += [start + (i / k) * (front - start) for i in range(1, k + 1)] + [approach]
     poses = []
@@ -185,6 +194,36 @@ def transfer_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, hold: Hol
         return AttemptFailure(f"lift:{limb}", f"{name}: the limb does not leave its hold by {clearance} m")
     transition = _transition(ctx, transfer_name(limb), limb, sigma_t, sigma_e, path)
     return Step(A.ClimbState(q_e, sigma_e), A.Segment(name, transition, hold, attempt))
+
+
+def free_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, q_end: np.ndarray, attempt: int,
+              rng: np.random.Generator, name: str = "") -> Step | AttemptFailure:
+    """``limb`` leaves its hold in ``state`` for good: lifted off along the hold's direction by
+    ``lift_clearance``, then on to a configuration near ``q_end`` (the contact plan's, the limb
+    free) in equilibrium on the other holds. The Transition has the moving limb and no hold for it
+    in its target stance (the FSM: remove, then the path, then the next transition)."""
+    old = state.stance.hold(limb)
+    if old is None:
+        raise SpecError(f"{name or 'free'}.limb", f"{limb} holds nothing to leave")
+    name = name or f"free_{limb}"
+    sigma = Stance(tuple(h for h in state.stance.holds if h.limb != limb), name=name)
+    proj = A.project(ctx, _seed(ctx, np.asarray(q_end, dtype=float), attempt, rng), sigma, rng)
+    if proj.q is None:
+        return AttemptFailure(proj.failure, f"{name}: end configuration ({dict(proj.failures)})")
+    q_s, q_e = np.asarray(state.q, dtype=float), proj.q
+    T_s = np.asarray(ctx.robot.T_world_surface(limb, q_s))
+    cue = T_s.copy()
+    cue[:3, 3] += ctx.settings.contact_path.lift_clearance * hold_direction(ctx, old, q_s)
+    q_bar = _seed(ctx, pin.interpolate(ctx.robot.model, q_s, q_e, 0.3), attempt, rng)
+    q_w = waypoint(ctx, q_s, q_bar, sigma, limb, [old], cue, rng)
+    if q_w is None:
+        res = ctx.check(q_bar, sigma, A.zone_exclusions(ctx, q_bar, limb, [old]))
+        return AttemptFailure(A.failure_name(res) or f"reach:{limb}", f"{name}: lift-off way-point")
+    path, _, failure = A.build_path(ctx, [q_s, q_w, q_e], sigma, limb, [old])
+    if path is None:
+        return AttemptFailure(failure, f"{name}: path")
+    transition = _transition(ctx, f"free_{'hand' if limb in HANDS else 'foot'}", limb, sigma, sigma, path)
+    return Step(A.ClimbState(q_e, sigma), A.Segment(name, transition, None, attempt))
 
 
 def _com_xy(ctx: A.AdaptContext, q: np.ndarray) -> np.ndarray:
