@@ -184,12 +184,12 @@ def test_a_palm_cannot_pull(g1, passage, palm_push):
         return feasibility.check_equilibrium(g1, res.q, stance, env=passage,
                                              external_forces=[(pelvis.name, point, np.array([0.0, 0.0, -newtons]))])
 
-    # on the block's side the hand pushes harder (4 kg; at 10 kg the wrist joints pass their
-    # torque limits: the push goes through the wrist) ...
+    # on the block's side the hand pushes harder (2 kg; from 4 kg the wrist yaw joint passes its
+    # torque limit: the push goes through the wrist, with half the block's friction counted) ...
     unloaded = feasibility.check_equilibrium(g1, res.q, stance, env=passage)
-    toward = with_load(-0.4, 40.0)
+    toward = with_load(-0.4, 20.0)
     assert toward.feasible, toward.summary()
-    assert _palm_forces(toward, palm)[0].sum() > _palm_forces(unloaded, palm)[0].sum() + 10.0
+    assert _palm_forces(toward, palm)[0].sum() > _palm_forces(unloaded, palm)[0].sum() + 5.0
     # ... on the far side (30 kg 0.5 m out: the whole CoM beyond the left sole's outer edge), only
     # a pull on the hand would hold the robot
     away = with_load(+0.5, 300.0)

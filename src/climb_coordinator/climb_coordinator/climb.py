@@ -151,7 +151,14 @@ class SearchPlanSource:
         from .session import stance_feet_rung
 
         t0 = time.perf_counter()
-        if start is None:  # the first plan: the feet end on rung ``steps`` (= the request's rungs)
+        if start is None and self.env.ladder is None:  # a scene: standing at its start pose
+            from planner_node.pipeline import search_start
+
+            q, stance = search_start(pipeline.Problem(pipeline.PlanRequest(id="start", robot=self.robot.config.name,
+                                                                           scenario=self.env.name, rungs=0),
+                                                      self.robot, self.env.scenario, self.env, None, self.psettings))
+            target = 0
+        elif start is None:  # the first plan: the feet end on rung ``steps`` (= the request's rungs)
             stance, q = fixtures.get(self.start_posture, self.robot, self.env)
             target = int(steps)
         else:  # a replan: ``steps`` more rungs above the held stance's feet
@@ -200,6 +207,14 @@ class BackendJudge:
     def grasps(self) -> dict:
         runner = self.executor.runner
         return dict(runner.sim_state.grasps) if runner is not None else {}
+
+    def base(self) -> tuple[np.ndarray, float]:
+        """The simulator's base position [m] and linear speed [m/s] (ground truth)."""
+        runner = self.executor.runner
+        if runner is None:
+            return np.full(3, np.nan), float("nan")
+        b = runner.sim_state.base
+        return np.asarray(b.T_world_base, float)[:3, 3].copy(), float(np.linalg.norm(b.linear_velocity_in_world))
 
 
 class InProcessExecutor:
@@ -391,6 +406,10 @@ def execute(req: ClimbRequest, plans, cs: ClimbSettings, scenario, initial_fixtu
     executor = InProcessExecutor(req, cs, out, scenario, initial_fixture, params, backend)
     session = ClimbSession(req, cs, plans, executor, BackendJudge(backend, cs, executor), say)
     session.summary = summary
+    scene = getattr(scenario, "scene", None)
+    goal = scene.goal if scene is not None and getattr(scenario, "ladder", None) is None else None
+    if goal is not None:  # a scene without a ladder: judged on its goal (scene_spec.md)
+        session.goal = (np.asarray(goal.base_position, float), float(goal.tolerance))
     executor.session = session
     try:
         session.run()

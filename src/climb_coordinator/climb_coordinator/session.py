@@ -38,6 +38,9 @@ MAX_FORCED_REPLANS = 2
 STRATEGIES = ("primitives", "search")
 #: stance fixtures a climb may start in (climb_core.fixtures)
 START_POSTURES = ("standing", "ladder_4_contacts")
+#: [m/s] a scene's goal counts when the base moves slower than this over the settle time
+#: (scene_spec.md, Results)
+GOAL_SPEED_MAX = 0.02
 
 
 @dataclass
@@ -135,9 +138,9 @@ def check_request(req: ClimbRequest) -> Any:
         raise SpecError("robot", f"unknown robot {req.robot!r} (known: {', '.join(known)})")
     scenario = load_scenario(req.ladder)
     if getattr(scenario, "ladder", None) is None:
-        raise SpecError("scenario.ladder", "executing a scene without a ladder is not supported yet (its goal judge "
-                                           "and palm contacts in the controller are missing): plan it with "
-                                           "scripts/plan.py --strategy search")
+        raise SpecError("scenario.ladder", "a scene without a ladder is executed in process only "
+                                           "(scripts/climb.py --scenario NAME --strategy search); through the "
+                                           "graph, ladders")
     from planner_node.settings import load_settings
 
     p = load_settings().planning
@@ -208,6 +211,7 @@ class Executor(Protocol):
 class Judge(Protocol):
     def feet_rungs(self) -> dict[str, int | None]: ...
     def grasps(self) -> dict[str, str]: ...
+    def base(self) -> tuple[np.ndarray, float]: ...  # base position [m] (world), speed [m/s]
 
 
 def plan_duration(plan: WholeBodyPlan) -> float:
@@ -273,6 +277,11 @@ class ClimbSession:
         self.n_up: int | None = None  # descend: first transition of the descent
         self.executed = False
         self.plan_time_s = 0.0
+        #: a scene without a ladder: (goal base position (3,) [m], tolerance [m]), judged instead
+        #: of the rungs (set from the scenario by the caller)
+        self.goal: tuple[np.ndarray, float] | None = None
+        self.settle_speed_max: float | None = None  # [m/s] largest base speed while settling
+        self.planned: list[WholeBodyPlan] = []  # every plan as planned (before max_transitions)
 
     # ------------------------------------------------------------------ progress (adapters call)
     @property
@@ -322,6 +331,7 @@ class ClimbSession:
             self.on_phase("failed", s["failure_reason"])
             return s
         plan = out.plan
+        self.planned.append(plan)
         if req.descend:
             s["descent_start_transition"] = int(out.stats["descent_start"])
             self.n_up = s["descent_start_transition"]
@@ -388,6 +398,7 @@ class ClimbSession:
                 done = len(self.current.transitions)
             else:  # the transition that loaded an off-plan contact was completed
                 done = max(status.transition_index, 0) + (1 if record["why"] == "contact_offset" else 0)
+            self.planned.append(nxt.plan)
             self._prefix.extend(self.current.transitions[:done])
             self.done_before += done
             self.active.append(nxt.plan)
@@ -395,8 +406,47 @@ class ClimbSession:
             self.executor.start(nxt.plan)
             status = self.executor.run(plan_duration(nxt.plan) + cs.extra_time_s, STOP_STATES)
         if status.fsm_state == "hold" and not (status.fell or status.fault):
-            status = self.executor.settle(cs.settle_time_s)
+            status = self._settle(cs.settle_time_s)
         return self.finish(status)
+
+    def _settle(self, duration_s: float) -> ExecStatus:
+        """Hold for ``duration_s`` of sim time, the base's largest speed over it in
+        ``settle_speed_max`` [m/s] (sampled every 0.1 s: a scene's goal counts when the robot
+        stands still)."""
+        chunks = max(1, int(round(duration_s / 0.1)))
+        status = None
+        self.settle_speed_max = 0.0
+        for _ in range(chunks):
+            status = self.executor.settle(duration_s / chunks)
+            self.settle_speed_max = max(self.settle_speed_max, float(self.judge.base()[1]))
+            if status.fell or status.fault:
+                break
+        return status
+
+    def _judge_goal(self, status: ExecStatus) -> list[str]:
+        """A scene without a ladder (scene_spec.md, Results): the base within the goal's
+        tolerance, standing still (base speed < GOAL_SPEED_MAX over the settle) and nothing fallen;
+        adds the spec's fields to the summary. The reasons it failed ([] when reached)."""
+        s = self.summary
+        goal, tolerance = self.goal
+        position, _ = self.judge.base()
+        distance = float(np.linalg.norm(np.asarray(position, float) - goal))
+        still = self.settle_speed_max is not None and self.settle_speed_max < GOAL_SPEED_MAX
+        stances = [st for plan in self.planned for st in [plan.initial_stance] + [t.target_stance for t in plan.transitions]]
+        s.update({"rungs_requested": 0, "rungs_reached": 0, "scene": s["ladder"],
+                  "goal_distance_m": round(distance, 4),
+                  "goal_reached": bool(distance <= tolerance and still and not status.fell),
+                  "contacts_used": sorted({h.env_surface for st in stances for h in st.holds})})
+        if self.settle_speed_max is not None:
+            s["settle_base_speed_max_m_s"] = round(self.settle_speed_max, 4)
+        out = []
+        if distance > tolerance and self.req.max_transitions is None:
+            out.append(f"base {distance:.3f} m from the goal (tolerance {tolerance} m)")
+        if not still and self.req.max_transitions is None:
+            speed = "never settled" if self.settle_speed_max is None else f"{self.settle_speed_max:.3f} m/s"
+            out.append(f"base not standing still at the goal ({speed}; need < {GOAL_SPEED_MAX} m/s for "
+                       f"{self.settings.settle_time_s} s)")
+        return out
 
     def executed_plan(self) -> WholeBodyPlan | None:
         """The plan as executed (the transitions run of every plan, concatenated)."""
@@ -448,6 +498,8 @@ class ClimbSession:
                                f"(need both on rung >= {req.rungs})")
             if req.max_transitions is None and any(feet.get(f) != 0 for f in FEET):
                 reasons.append(f"feet on {feet} at the end of the descent (need both on the ground)")
+        elif self.goal is not None:
+            reasons += self._judge_goal(status)
         elif req.max_transitions is None and reached < req.rungs:
             reasons.append(f"feet on rungs {feet} (need both on rung >= {req.rungs})")
         s["success"] = not reasons

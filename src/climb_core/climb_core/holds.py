@@ -80,6 +80,10 @@ class HoldParams:
     grasp_palm_angle_bar_deg: float = param(30.0, unit="deg", min=-90.0, max=90.0, description=(
         "nominal roll of a grasp around a rectangular bar: the palm on the robot's side, this far above "
         "the horizontal (0 = flat on the bar's face toward the robot)"))
+    push_friction_fraction: float = param(0.5, unit="-", min=0.05, max=1.0, description=(
+        "share of a surface's friction a hand pushing on it (a palm-kind surface: G1's back of the "
+        "hand) counts on: its contact is small and domed, and a plan standing at the cone's edge "
+        "there slides (narrow_passage_step: tangential/normal 0.69-0.70 on mu 0.7, then a fall)"))
 
 
 @dataclass(frozen=True)
@@ -460,7 +464,7 @@ def make_hold(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0
 
     s: position along the surface axis from its centre [m] (rungs, rails, treads); position /
     yaw: sole (palm) centre [m] and heading [rad] on a plane or box top. friction defaults to the
-    surface's, grip_force_limit to the robot's grip strength [N]. robot_surface: the limb's
+    surface's (a hand's push: ``push_friction_fraction`` of it), grip_force_limit to the robot's grip strength [N]. robot_surface: the limb's
     surface making the hold (default: the primary one; :func:`robot_surface_for` gives the rule).
     """
     params = params or HoldParams()
@@ -470,6 +474,8 @@ def make_hold(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0
                                   params=params, R_world_surface_seed=R_world_surface_seed,
                                   robot_surface=rs.name)
     mu = float(sf.friction if friction is None else friction)
+    if friction is None and rs.kind == "palm":
+        mu *= params.push_friction_fraction
     if not (math.isfinite(mu) and mu > 0.0):
         raise SpecError("hold.friction", f"must be a positive finite number, got {mu}")
     if kind == "grasp":

@@ -9,6 +9,7 @@ state), the sequence starts with the cycles.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -233,6 +234,7 @@ class ContactStep:
     hold: Any  # the new hold (limb), None otherwise
     q_end: np.ndarray  # the contact plan's transition configuration of the next stance
     unload: tuple[str, ...] = ()  # generic CoM shift / release: limbs that must be removable at its end
+    keep: tuple[str, ...] = ()  # limbs freed for good by an earlier step: their joints stay as they are
 
 
 def _same_hold(a, b) -> bool:
@@ -268,6 +270,7 @@ def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[Con
         changes.append(changed[0] if changed else "")
     steps = []
     released: dict[str, Any] = {}  # limb -> hold released by the plan, still held until the limb moves
+    freed: list[str] = []  # limbs freed for good so far
     for i, (a, b) in enumerate(zip(plan.stances[:-1], plan.stances[1:])):
         q_end = np.asarray(plan.transition_configurations[i + 1], dtype=float)
         limb = changes[i]
@@ -285,7 +288,10 @@ def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[Con
                                    for k in range(i + 1, len(changes))):
             # released for good (a hand off the block once the feet are up): the limb leaves its
             # hold and stays free
-            steps.append(ContactStep(f"free_{limb}_{i}", "free", None, limb, None, q_end))
+            # first the CoM onto the other holds (the limb still held, removable at the end), then off
+            steps.append(ContactStep(f"release_{limb}_{i}", "release", None, limb, None, q_end, (limb,)))
+            steps.append(ContactStep(f"free_{limb}_{i}", "free", None, limb, None, q_end, keep=tuple(freed)))
+            freed.append(limb)
             continue
         if new is None:
             released[limb] = a.hold(limb)
@@ -304,7 +310,13 @@ def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[Con
         prim = dc.replace(cands[-1], end_unload=(limb,)) if cands else None
         name = prim.name if prim is not None else f"generic_{limb}"
         steps.append(ContactStep(f"{name}_{i}", "limb", prim, limb, new, q_end))
-    return steps
+    # every step after a limb's release for good keeps that limb's posture
+    out, kept = [], ()
+    for st in steps:
+        out.append(dc.replace(st, keep=kept) if kept and st.kind != "free" else st)
+        if st.kind == "free":
+            kept = kept + (st.limb,)
+    return out
 
 
 def _adapt_contact_step(ctx: AdaptContext, step: ContactStep, state: ClimbState, attempt: int,
@@ -312,6 +324,8 @@ def _adapt_contact_step(ctx: AdaptContext, step: ContactStep, state: ClimbState,
     from . import adapt as A
     from . import contact_path
 
+    if step.keep:  # limbs freed for good keep their posture (the search left them where they held)
+        step = dataclasses.replace(step, q_end=contact_path.keep_limb_posture(ctx.robot, step.q_end, state.q, step.keep))
     try:
         if step.kind == "free":
             return contact_path.free_step(ctx, state, step.limb, step.q_end, attempt, rng, step.name)

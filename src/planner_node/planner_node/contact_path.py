@@ -196,29 +196,62 @@ def transfer_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, hold: Hol
     return Step(A.ClimbState(q_e, sigma_e), A.Segment(name, transition, hold, attempt))
 
 
+def limb_joint_indices(robot, limb: str) -> np.ndarray:
+    """Indices in q of the joints that move ``limb`` alone: its chain from the root minus the
+    chain of the other limb of its pair (the other hand / foot), e.g. shoulder to wrist."""
+    model = robot.model
+    pairs = {"left_hand": "right_hand", "right_hand": "left_hand", "left_foot": "right_foot",
+             "right_foot": "left_foot"}
+
+    def chain(name: str) -> list[int]:
+        j = model.frames[robot.frame_id(robot.config.limbs[name].surface.frame)].parentJoint
+        out = []
+        while j > 0:
+            out.append(j)
+            j = model.parents[j]
+        return out
+
+    other = set(chain(pairs[limb])) if pairs.get(limb) in robot.config.limbs else set()
+    return np.array(sorted(model.idx_qs[j] for j in chain(limb) if j not in other and model.nqs[j] == 1), int)
+
+
+def keep_limb_posture(robot, q: np.ndarray, q_from: np.ndarray, limbs) -> np.ndarray:
+    """``q`` with the joints of each of ``limbs`` (:func:`limb_joint_indices`) as in ``q_from``:
+    a limb freed for good keeps its posture while the others move (the contact search leaves a
+    removed hand where it held)."""
+    out = np.array(q, dtype=float)
+    for limb in limbs:
+        idx = limb_joint_indices(robot, limb)
+        out[idx] = np.asarray(q_from, dtype=float)[idx]
+    return out
+
+
 def free_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, q_end: np.ndarray, attempt: int,
               rng: np.random.Generator, name: str = "") -> Step | AttemptFailure:
     """``limb`` leaves its hold in ``state`` for good: lifted off along the hold's direction by
-    ``lift_clearance``, then on to a configuration near ``q_end`` (the contact plan's, the limb
-    free) in equilibrium on the other holds. The Transition has the moving limb and no hold for it
-    in its target stance (the FSM: remove, then the path, then the next transition)."""
+    ``lift_clearance`` (a way-point, the other holds kept), then on to a configuration near
+    ``q_end`` (the contact plan's) with the limb's joints as at the lift-off, in equilibrium on
+    the other holds. The Transition has the moving limb and no hold for it in its target stance
+    (the FSM: remove, then the path, then the next transition). The later steps keep that limb's
+    posture (:func:`keep_limb_posture`)."""
     old = state.stance.hold(limb)
     if old is None:
         raise SpecError(f"{name or 'free'}.limb", f"{limb} holds nothing to leave")
     name = name or f"free_{limb}"
     sigma = Stance(tuple(h for h in state.stance.holds if h.limb != limb), name=name)
-    proj = A.project(ctx, _seed(ctx, np.asarray(q_end, dtype=float), attempt, rng), sigma, rng)
-    if proj.q is None:
-        return AttemptFailure(proj.failure, f"{name}: end configuration ({dict(proj.failures)})")
-    q_s, q_e = np.asarray(state.q, dtype=float), proj.q
+    q_s = np.asarray(state.q, dtype=float)
     T_s = np.asarray(ctx.robot.T_world_surface(limb, q_s))
     cue = T_s.copy()
     cue[:3, 3] += ctx.settings.contact_path.lift_clearance * hold_direction(ctx, old, q_s)
-    q_bar = _seed(ctx, pin.interpolate(ctx.robot.model, q_s, q_e, 0.3), attempt, rng)
-    q_w = waypoint(ctx, q_s, q_bar, sigma, limb, [old], cue, rng)
+    q_w = waypoint(ctx, q_s, _seed(ctx, q_s, attempt, rng), sigma, limb, [old], cue, rng)
     if q_w is None:
-        res = ctx.check(q_bar, sigma, A.zone_exclusions(ctx, q_bar, limb, [old]))
+        res = ctx.check(q_s, sigma, A.zone_exclusions(ctx, q_s, limb, [old]))
         return AttemptFailure(A.failure_name(res) or f"reach:{limb}", f"{name}: lift-off way-point")
+    q_bar = keep_limb_posture(ctx.robot, _seed(ctx, np.asarray(q_end, dtype=float), attempt, rng), q_w, [limb])
+    proj = A.project(ctx, q_bar, sigma, rng)
+    if proj.q is None:
+        return AttemptFailure(proj.failure, f"{name}: end configuration ({dict(proj.failures)})")
+    q_e = proj.q
     path, _, failure = A.build_path(ctx, [q_s, q_w, q_e], sigma, limb, [old])
     if path is None:
         return AttemptFailure(failure, f"{name}: path")
