@@ -159,3 +159,42 @@ def test_check_request_refuses_with_the_field(changes, field):
         check_request(ClimbRequest(**changes))
     assert err.value.field == field
     check_request(ClimbRequest(rungs=4))  # the default ladder gives G1 rung 4 (hands on rung 8)
+
+
+class SceneJudge(Judge):
+    """A scene's judge: the base's position [m] and speed [m/s] as the simulator would give them."""
+
+    def __init__(self, position, speeds):
+        super().__init__(None)
+        self.position = np.asarray(position, float)
+        self.speeds = list(speeds)
+
+    def base(self):
+        return self.position, self.speeds.pop(0) if len(self.speeds) > 1 else self.speeds[0]
+
+
+def _scene_session(position, speeds, status=None, **request):
+    plan = _held_plan(2)
+    session = ClimbSession(ClimbRequest(ladder="narrow_passage_step", strategy="search", **request), Settings(),
+                           Plans([PlanOutcome(True, plan, 1.0, 3)]),
+                           Executor([status or ExecStatus(10.0, "hold", 1)]), SceneJudge(position, speeds))
+    session.goal = (np.array([1.05, 0.0, 1.11]), 0.15)
+    return session.run()
+
+
+def test_a_scene_is_judged_on_its_goal_not_on_rungs():
+    """scene_spec.md, Results: success = the base within the goal's tolerance, standing still over
+    the settle (< 0.02 m/s at every 0.1 s sample), nothing fallen; rungs 0; contacts_used from the plan."""
+    s = _scene_session([1.0, 0.05, 1.12], [0.01])
+    assert s["success"] and s["goal_reached"], s["failure_reason"]
+    assert s["rungs_requested"] == s["rungs_reached"] == 0 and s["scene"] == "narrow_passage_step"
+    assert s["goal_distance_m"] == pytest.approx(np.linalg.norm([0.05, 0.05, 0.01]), abs=1e-4)
+    assert s["contacts_used"] == ["rung_0", "rung_1", "rung_2"]  # every surface the plan holds
+    far = _scene_session([0.5, 0.0, 1.11], [0.0])
+    assert not far["success"] and not far["goal_reached"] and "from the goal" in far["failure_reason"]
+    # one sample of the settle above 0.02 m/s: not standing still, not reached
+    moving = _scene_session([1.05, 0.0, 1.11], [0.0] * 5 + [0.05] + [0.0] * 10)
+    assert not moving["goal_reached"] and "not standing still" in moving["failure_reason"]
+    assert moving["settle_base_speed_max_m_s"] == pytest.approx(0.05)
+    fell = _scene_session([1.05, 0.0, 1.11], [0.0], ExecStatus(10.0, "hold", 1, fell=True, fall_reason="base low"))
+    assert not fell["goal_reached"] and "fell: base low" in fell["failure_reason"]

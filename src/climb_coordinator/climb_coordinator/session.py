@@ -410,9 +410,11 @@ class ClimbSession:
         return self.finish(status)
 
     def _settle(self, duration_s: float) -> ExecStatus:
-        """Hold for ``duration_s`` of sim time, the base's largest speed over it in
+        """Hold for ``duration_s`` of sim time; for a scene, the base's largest speed over it in
         ``settle_speed_max`` [m/s] (sampled every 0.1 s: a scene's goal counts when the robot
         stands still)."""
+        if self.goal is None:  # a ladder: judged on the rungs, not on the base's speed
+            return self.executor.settle(duration_s)
         chunks = max(1, int(round(duration_s / 0.1)))
         status = None
         self.settle_speed_max = 0.0
