@@ -38,6 +38,7 @@ from typing import Any, Callable
 import numpy as np
 
 from climb_core.contact import LIMBS, WholeBodyPlan
+from climb_core.errors import SpecError
 
 from . import judge
 from .record import BagWriter, ClimbLog, sample
@@ -193,6 +194,25 @@ class SearchPlanSource:
         return PlanOutcome(ok, plan, time.perf_counter() - t0, len(contact_plan.stances),
                            "" if ok else f"{res.failure_constraint}: {res.failure_detail}", dict(res.stats),
                            stages_s=stages, start_projection_mm=projection)
+
+
+class StoredPlanSource:
+    """Plan source port of a plan made before (``planner_node.plan_io`` JSON, e.g. scripts/plan.py
+    --out): the first plan as stored (clipped to the joint limits like a fresh one), no replan."""
+
+    def __init__(self, path, robot, cs: ClimbSettings):
+        from planner_node.plan_io import load_plan
+
+        self.plan_, self.metadata = load_plan(path)
+        if self.plan_.robot != robot.config.name:
+            raise SpecError("plan.robot", f"the stored plan is for {self.plan_.robot!r}, not {robot.config.name!r}")
+        self.robot, self.cs = robot, cs
+
+    def plan(self, steps: int, start=None, surface_offsets=None) -> PlanOutcome:
+        if start is not None:
+            return PlanOutcome(False, None, 0.0, failure="replan: a stored plan is not replanned")
+        plan = clip_plan_to_limits(self.plan_, self.robot, self.cs.plan_joint_limit_margin)
+        return PlanOutcome(True, plan, 0.0, len(plan.transitions) + 1)
 
 
 class BackendJudge:
