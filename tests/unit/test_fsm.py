@@ -276,3 +276,30 @@ def test_a_plan_while_a_transition_runs_is_refused_with_the_reason(ladder):
     assert controller.hold_plan() in ("unload", "open_gripper")
     controller.set_plan(plan)  # from hold
     assert controller.plan_pending
+
+
+def test_a_hand_freed_for_good_leaves_its_rung_without_a_guard_or_a_search(ladder):
+    """A transition whose target stance has no hold for its moving limb (a hand off the block once
+    the feet are up): remove (unload, open gripper), then the path unguarded, then ``freed``; the
+    hand stays out of the contact set, and nothing searched for a contact."""
+    import dataclasses
+
+    robot, env, stance, q, transfer = ladder
+    freed = dataclasses.replace(transfer, target_stance=stance.without("right_hand"))
+    params = load_controller_params(**{"collision.enabled": False})
+    controller = Controller(robot, params, env)
+    loop = KinematicLoop(controller, q)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    controller.set_plan(plan_of(robot, env, stance, [freed]))
+    states = []
+    for _ in range(1400):
+        out = loop.step()
+        if not states or states[-1] != out.status.fsm_state:
+            states.append(out.status.fsm_state)
+        if out.status.fsm_state in ("hold", "failure", "replan_needed"):
+            break
+    assert states[states.index("unload"):] == ["unload", "open_gripper", "transfer", "hold"], states
+    assert ("transfer", "freed", "select") in [(a, e, b) for _, a, e, b in controller.fsm.history]
+    assert set(controller.contacts) == {"left_foot", "right_foot", "left_hand"}
+    assert not controller.events_of("contact_detected") and not controller.events_of("search_started")
+    assert controller.transition_index >= 0 and out.status.fsm_state == "hold"
