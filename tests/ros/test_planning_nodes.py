@@ -115,9 +115,10 @@ def test_a_ladder_the_library_cannot_hold_fails_the_guide_path_with_the_constrai
     from planner_node.pipeline import guide_path, load_problem, parse_plan_request
 
     problem = load_problem(parse_plan_request(json.dumps(dict(REQUEST, scenario="a_frame"))), stage_settings())
-    with pytest.raises(InfeasibleError) as err:  # its treads are boxes: the G1 library grasps cylinders
-        guide_path(problem)
-    assert err.value.constraint == "hold:hold.env_surface" and "mount_left_hand" in err.value.detail
+    with pytest.raises(InfeasibleError) as err:  # its treads are 0.08 m deep boxes: past the Dex3 hand's
+        guide_path(problem)  # max_bar (0.047 m deep), the field and the limit named
+    assert err.value.constraint == "hold:ladder.rung.depth" and "mount_left_hand" in err.value.detail
+    assert "0.047" in err.value.detail
 
 
 def test_the_seed_sequence_of_a_climb_and_back_down_retraces_the_cycles():
