@@ -115,6 +115,19 @@ class KinematicLoop:
         return out
 
 
+def _run_until_settled(loop: KinematicLoop, ticks: int):
+    """Tick until the FSM rests (hold, failure, replan_needed) or ``ticks`` pass: the states
+    visited, in order, and the last output."""
+    states, out = [], None
+    for _ in range(ticks):
+        out = loop.step()
+        if not states or states[-1] != out.status.fsm_state:
+            states.append(out.status.fsm_state)
+        if out.status.fsm_state in ("hold", "failure", "replan_needed"):
+            break
+    return states, out
+
+
 @pytest.fixture(scope="module")
 def ladder():
     from climb_core.environment import build_environment
@@ -140,13 +153,7 @@ def test_hand_transfer_runs_remove_then_add_contact_states_and_stops_on_ft_conta
     approach = T_target[:3, 2]
     # the palm face meets the rung when the grasp centre reaches the rung axis (+ offset)
     loop.contact_plane = (T_target[:3, 3] + offset * approach, approach)
-    states = []
-    for _ in range(1400):
-        out = loop.step()
-        if not states or states[-1] != out.status.fsm_state:
-            states.append(out.status.fsm_state)
-        if out.status.fsm_state in ("hold", "failure", "replan_needed"):
-            break
+    states, out = _run_until_settled(loop, 1400)
     expected = ["unload", "open_gripper", "transfer"] + ([] if expect_early else ["search"]) + \
         ["close_gripper", "load", "hold"]
     assert states[states.index("unload"):] == expected
@@ -175,13 +182,7 @@ def test_a_contact_found_off_the_plan_is_loaded_then_held_for_a_replan(ladder, o
     T_target = robot.T_world_surface("right_hand", transition.path[-1])
     approach = T_target[:3, 2]
     loop.contact_plane = (T_target[:3, 3] + offset * approach, approach)
-    states = []
-    for _ in range(1600):
-        out = loop.step()
-        if not states or states[-1] != out.status.fsm_state:
-            states.append(out.status.fsm_state)
-        if out.status.fsm_state in ("hold", "failure", "replan_needed"):
-            break
+    states, out = _run_until_settled(loop, 1600)
     assert states[-3:] == ["close_gripper", "load", "replan_needed"], states
     assert out.status.replan_needed and controller.replan_reason == "contact_offset"
     assert "right_hand" in controller.contacts and controller.holds["right_hand"].env_surface == "rung_6"
@@ -205,10 +206,7 @@ def test_a_contact_found_within_the_bound_goes_on_with_the_plan(ladder):
     controller.set_plan(plan_of(robot, env, stance, [transition]))
     T_target = robot.T_world_surface("right_hand", transition.path[-1])
     loop.contact_plane = (T_target[:3, 3] - 0.01 * T_target[:3, 2], T_target[:3, 2])
-    for _ in range(1600):
-        out = loop.step()
-        if out.status.fsm_state in ("hold", "failure", "replan_needed"):
-            break
+    _, out = _run_until_settled(loop, 1600)
     assert out.status.fsm_state == "hold" and not controller.events_of("replan_needed")
     (event,) = controller.events_of("contact_offset")
     assert event.values["surface"] == "rung_6" and event.values["distance"] == pytest.approx(-0.01, abs=0.006)
@@ -221,10 +219,7 @@ def test_search_gives_up_and_asks_for_replanning_without_contact(ladder):
     loop = KinematicLoop(controller, q)  # no spring: the rung is not where planned
     controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
     controller.set_plan(plan_of(robot, env, stance, [transition]))
-    for _ in range(1400):
-        out = loop.step()
-        if out.status.fsm_state in ("hold", "replan_needed", "failure"):
-            break
+    _, out = _run_until_settled(loop, 1400)
     assert out.status.fsm_state == "replan_needed" and out.status.replan_needed
     assert controller.replan_reason == "no_contact"
     assert "right_hand" not in controller.contacts  # never added without a contact
@@ -291,13 +286,7 @@ def test_a_hand_freed_for_good_leaves_its_rung_without_a_guard_or_a_search(ladde
     loop = KinematicLoop(controller, q)
     controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
     controller.set_plan(plan_of(robot, env, stance, [freed]))
-    states = []
-    for _ in range(1400):
-        out = loop.step()
-        if not states or states[-1] != out.status.fsm_state:
-            states.append(out.status.fsm_state)
-        if out.status.fsm_state in ("hold", "failure", "replan_needed"):
-            break
+    states, out = _run_until_settled(loop, 1400)
     assert states[states.index("unload"):] == ["unload", "open_gripper", "transfer", "hold"], states
     assert ("transfer", "freed", "select") in [(a, e, b) for _, a, e, b in controller.fsm.history]
     assert set(controller.contacts) == {"left_foot", "right_foot", "left_hand"}

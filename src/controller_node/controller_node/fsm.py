@@ -293,7 +293,7 @@ class TransferState(State):
             ctx.remove_contact(limb)
         ctx.start_path(ctx.transition, limb)  # the damper of (limb, target surface) goes off on
         # the last path segment (the approach), see Controller.track_path
-        if ctx.moving_kind == "palm":  # a palm push: fingers straight, out of the palm's way
+        if ctx.moving_kind == "palm":  # a push: fingers straight, out of the push surface's way
             ctx.gripper(limb, "open")
         elif limb in HANDS:
             ctx.gripper(limb, "position", ctx.params.gripper.pregrasp_position)

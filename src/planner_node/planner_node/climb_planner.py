@@ -253,7 +253,8 @@ def _surface_kind(surface: str) -> str:
 def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[ContactStep]:
     """Sub-tasks for a contact plan: one per consecutive stance pair (SpecError when a pair changes
     more than one hold). A pair no library primitive fits (a hold left or made on a surface other
-    than the ground or a rung, an empty library) gets a generic step (``primitive`` None). A released limb stays held
+    than the ground or a rung, an empty library) gets a generic step (``primitive`` None). A
+    released limb stays held
     (the controller releases it when it moves next): its release is a CoM shift ending with the
     limb removable, and its next placement moves it from that hold."""
     import dataclasses as dc
@@ -270,15 +271,14 @@ def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[Con
         changes.append(changed[0] if changed else "")
     steps = []
     released: dict[str, Any] = {}  # limb -> hold released by the plan, still held until the limb moves
-    freed: list[str] = []  # limbs freed for good so far
     for i, (a, b) in enumerate(zip(plan.stances[:-1], plan.stances[1:])):
         q_end = np.asarray(plan.transition_configurations[i + 1], dtype=float)
         limb = changes[i]
         nxt = changes[i + 1] if i + 1 < len(changes) else ""
         unload_next = (nxt,) if nxt and (b.hold(nxt) is not None or nxt in released) else ()
-        ladder_stances = all(_surface_kind(h.env_surface) for st in (a, b) for h in st.holds)
         if not limb:
             # the library's CoM shift is a ladder move: only between holds on the ground or rungs
+            ladder_stances = all(_surface_kind(h.env_surface) for st in (a, b) for h in st.holds)
             com = [p for p in library.primitives.values() if p.kind == "com"] if ladder_stances else []
             prim = dc.replace(com[0], end_unload=()) if com else None
             steps.append(ContactStep(f"com_{i}", "com", prim, "", None, q_end, () if com else unload_next))
@@ -286,12 +286,11 @@ def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[Con
         new = b.hold(limb)
         if new is None and not any(changes[k] == limb and plan.stances[k + 1].hold(limb) is not None
                                    for k in range(i + 1, len(changes))):
-            # released for good (a hand off the block once the feet are up): the limb leaves its
+            # released for good (a hand off the block once the feet are up): first the CoM onto
+            # the other holds (the limb still held, removable at the end), then the limb leaves its
             # hold and stays free
-            # first the CoM onto the other holds (the limb still held, removable at the end), then off
             steps.append(ContactStep(f"release_{limb}_{i}", "release", None, limb, None, q_end, (limb,)))
-            steps.append(ContactStep(f"free_{limb}_{i}", "free", None, limb, None, q_end, keep=tuple(freed)))
-            freed.append(limb)
+            steps.append(ContactStep(f"free_{limb}_{i}", "free", None, limb, None, q_end))
             continue
         if new is None:
             released[limb] = a.hold(limb)
@@ -313,7 +312,7 @@ def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[Con
     # every step after a limb's release for good keeps that limb's posture
     out, kept = [], ()
     for st in steps:
-        out.append(dc.replace(st, keep=kept) if kept and st.kind != "free" else st)
+        out.append(dc.replace(st, keep=kept) if kept else st)
         if st.kind == "free":
             kept = kept + (st.limb,)
     return out

@@ -98,7 +98,8 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
     back = p_s - p_e  # horizontal, toward where the limb comes from (across a bar: no sideways swing)
     back[2] = 0.0
     target = ctx.env.surfaces.get(new.env_surface)
-    if target is not None and (target.shape == "cylinder" or holds_mod.is_bar(target)):  # a rung, round or rect
+    rung = target is not None and (target.shape == "cylinder" or holds_mod.is_bar(target))  # round or rect
+    if rung:
         back = back - float(back @ target.axis) * target.axis
     nb = float(np.linalg.norm(back))
     b = back / nb if nb > 1e-6 else np.zeros(3)
@@ -110,7 +111,7 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
         start = start + behind * b
         points.append(start)
     rise = float(front[2] - start[2])
-    flat_foot = target is not None and target.shape != "cylinder" and limb in FEET
+    flat_foot = target is not None and not rung and limb in FEET
     if flat_foot and rise > p.lift_clearance:
         # onto a higher flat surface (a step, a tread): straight up to the front point's height
         # first, so that the toes clear the edge before the foot moves over it
@@ -200,8 +201,6 @@ def limb_joint_indices(robot, limb: str) -> np.ndarray:
     """Indices in q of the joints that move ``limb`` alone: its chain from the root minus the
     chain of the other limb of its pair (the other hand / foot), e.g. shoulder to wrist."""
     model = robot.model
-    pairs = {"left_hand": "right_hand", "right_hand": "left_hand", "left_foot": "right_foot",
-             "right_foot": "left_foot"}
 
     def chain(name: str) -> list[int]:
         j = model.frames[robot.frame_id(robot.config.limbs[name].surface.frame)].parentJoint
@@ -211,8 +210,10 @@ def limb_joint_indices(robot, limb: str) -> np.ndarray:
             j = model.parents[j]
         return out
 
-    other = set(chain(pairs[limb])) if pairs.get(limb) in robot.config.limbs else set()
-    return np.array(sorted(model.idx_qs[j] for j in chain(limb) if j not in other and model.nqs[j] == 1), int)
+    pair = HANDS if limb in HANDS else FEET
+    other = next((o for o in pair if o != limb and o in robot.config.limbs), None)
+    shared = set(chain(other)) if other is not None else set()
+    return np.array(sorted(model.idx_qs[j] for j in chain(limb) if j not in shared and model.nqs[j] == 1), int)
 
 
 def keep_limb_posture(robot, q: np.ndarray, q_from: np.ndarray, limbs) -> np.ndarray:
