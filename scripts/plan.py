@@ -41,6 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--start", default=None, help="start stance fixture (default: the library's, standing)")
     ap.add_argument("--out", default=None, help="write the whole-body plan (JSON) to this file")
     ap.add_argument("--verify", action="store_true", help="re-check the plan at 4x the discretisation")
+    ap.add_argument("--set", action="append", default=[], metavar="GROUP.FIELD=VALUE",
+                    help="override a planner setting of config/planner.yaml (repeatable), e.g. "
+                         "--set planning.sole_cop_margin=0.02")
     ap.add_argument("--descend", action="store_true",
                     help="plan the climb and then the climb back down (its cycles reversed): feet end on the ground")
     return ap
@@ -130,6 +133,21 @@ def scene_fields(scenario, result) -> dict:
     return out
 
 
+def parse_overrides(items: list[str]) -> dict:
+    """``GROUP.FIELD=VALUE`` strings -> {"GROUP.FIELD": value} (values read as YAML scalars)."""
+    import yaml
+
+    from climb_core.errors import SpecError
+
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or "." not in key:
+            raise SpecError("--set", f"expects GROUP.FIELD=VALUE, got {item!r}")
+        out[key.strip()] = yaml.safe_load(value)
+    return out
+
+
 def run(args: argparse.Namespace):
     import dataclasses
 
@@ -141,9 +159,9 @@ def run(args: argparse.Namespace):
     from planner_node import plan_io
     from planner_node.climb_planner import plan_climb
     from planner_node.primitives import load_library
-    from planner_node.settings import load_settings
+    from planner_node.settings import apply_overrides, load_settings
 
-    settings = load_settings()
+    settings = apply_overrides(load_settings(), parse_overrides(args.set), where="--set")
     if args.strategy == "search":
         return run_search(args, settings)
     if args.strategy:

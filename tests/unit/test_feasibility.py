@@ -143,6 +143,35 @@ def test_feet_only_feasible_iff_com_inside_support_polygon(g1, env, cfg, standin
     assert abs(0.5 * (lo + hi) - edge) < 0.003  # boundary = the polygon edge within 3 mm
 
 
+@pytest.mark.parametrize("direction", [(-1.0, 0.0), (0.0, 1.0)])
+def test_sole_cop_margin_moves_the_boundary_inside_by_the_margin(g1, env, cfg, standing, direction):
+    """``check.sole_cop_margin``: a flat sole's statics count its corners that far inside the sole
+    (toward the heel, across the feet): the CoM's limit moves in by the margin, the holds stay."""
+    stance, q = standing
+    margin = 0.02
+    inset = fz.with_check(cfg, sole_cop_margin=margin)
+    corners = np.vstack([h.positions for h in stance.holds])[:, :2]
+    d = np.array(direction)
+    c0 = _com(g1, q)[:2]
+    edge = float(np.max((corners - c0) @ d)) - margin
+    between = c0 + (edge + 0.5 * margin) * d  # inside the sole, outside its inset polygon
+    assert _feasible_with_com(g1, env, cfg, stance, q, between).feasible
+    res = ik.solve(g1, env, q, stance, com_target=between)
+    refused = fz.check(g1, env, res.q, stance, inset, collision=False)
+    assert refused.violated == ["equilibrium"], refused.violated
+    lo, hi = 0.0, edge + 0.5 * margin
+    for _ in range(6):
+        mid = 0.5 * (lo + hi)
+        res = ik.solve(g1, env, q, stance, com_target=c0 + mid * d)
+        if fz.check(g1, env, res.q, stance, inset, collision=False).feasible:
+            lo = mid
+        else:
+            hi = mid
+    assert abs(0.5 * (lo + hi) - edge) < 0.003  # the inset polygon's edge within 3 mm
+    # the contact check still compares the sole with the holds' own corners
+    assert fz.check(g1, env, q, stance, inset, collision=False).feasible
+
+
 # --------------------------------------------------------------------------------------------
 # hanging from two grasps: grip limits
 

@@ -74,6 +74,10 @@ class CheckParams:
         "the cones use margin * mu"))
     min_normal_force: float = param(0.0, unit="N", min=0.0, description=(
         "lower bound of each unilateral point's normal force"))
+    sole_cop_margin: float = param(0.0, unit="m", min=0.0, max=0.05, description=(
+        "the statics of a flat sole count its corners this far inside the sole's edges (along the sole's "
+        "length and width): the centre of pressure the stance needs stays that far from the edges, where "
+        "tracking errors and the motion's dynamics push it"))
     torque_limit_fraction: float = param(1.0, unit="-", min=0.0, description=(
         "share of the URDF effort limits the stance may use"))
     grip_limit_fraction: float = param(1.0, unit="-", min=0.0, description=(
@@ -225,6 +229,15 @@ def tangent_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t1, np.cross(n, t1)
 
 
+def _inset_sole_points(P: np.ndarray, R_world_sole: np.ndarray, margin: float) -> np.ndarray:
+    """A flat sole's corner points moved ``margin`` toward their centre along the sole's length
+    and width (R_world_sole: its surface axes): the statics' support polygon, shrunk."""
+    c = P.mean(axis=0)
+    local = (P - c) @ R_world_sole
+    local[:, :2] = np.sign(local[:, :2]) * np.maximum(np.abs(local[:, :2]) - margin, 0.0)
+    return c + local @ R_world_sole.T
+
+
 def _compile(robot: Any, env: Any, stance: Stance, cfg: FeasibilityConfig) -> _CompiledStance:
     if not isinstance(stance, Stance):
         raise SpecError("stance", f"must be a climb_core.contact.Stance, got {type(stance).__name__}")
@@ -239,7 +252,6 @@ def _compile(robot: Any, env: Any, stance: Stance, cfg: FeasibilityConfig) -> _C
             raise SpecError(f"stance.{hold.limb}.bilateral", f"{rs.name} is a {rs.kind}: unilateral, it cannot pull")
         limbs.append(hold.limb)
         fids.append(robot.frame_id(rs.frame))
-        pts.append(hold.positions)
         offsets.append(off)
         off += 3 * len(hold.points)
         if env is not None:
@@ -249,6 +261,10 @@ def _compile(robot: Any, env: Any, stance: Stance, cfg: FeasibilityConfig) -> _C
         else:
             targets.append(None)
             kinds.append("grasp" if hold.bilateral else f"{rs.kind}_flat")
+        if kinds[-1] == "sole_flat" and p.sole_cop_margin > 0.0 and targets[-1] is not None:
+            pts.append(_inset_sole_points(hold.positions, targets[-1].T_world_surface[:3, :3], p.sole_cop_margin))
+        else:
+            pts.append(hold.positions)
     nf = off
     rows, rcoef, up, lo, kind = [], [], [], [], []
     f_lo = np.full(nf, -p.unbounded_force)

@@ -120,7 +120,8 @@ class AdaptContext:
             torque_limit_fraction=min(self.frozen_cfg.check.torque_limit_fraction, p.torque_limit_fraction),
             grip_limit_fraction=min(self.frozen_cfg.check.grip_limit_fraction, p.grip_limit_fraction),
             friction_margin=min(self.frozen_cfg.check.friction_margin, p.friction_margin),
-            min_normal_force=max(self.frozen_cfg.check.min_normal_force, p.min_normal_force))
+            min_normal_force=max(self.frozen_cfg.check.min_normal_force, p.min_normal_force),
+            sole_cop_margin=max(self.frozen_cfg.check.sole_cop_margin, p.sole_cop_margin))
         self.hold_params = self.frozen_cfg.holds
         base_ik = core_ik.load_ik_params()
         self.ik_params = dataclasses.replace(base_ik, restarts=0)

@@ -369,6 +369,7 @@ def feasibility_config_for(base: feasibility.FeasibilityConfig, params: PCIKPara
                                   grip_limit_fraction=params.grip_limit_fraction,
                                   torque_limit_fraction=params.torque_limit_fraction,
                                   min_normal_force=params.min_normal_force,
+                                  sole_cop_margin=max(base.check.sole_cop_margin, params.sole_cop_margin),
                                   collision_margin=params.collision_margin)
 
 

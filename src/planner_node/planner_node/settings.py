@@ -54,6 +54,8 @@ class PCIKParams:
     grip_limit_fraction: float = param(0.9, unit="-", min=0.1, max=1.0, description="share of the grip strength the IK may use")
     friction_margin: float = param(0.9, unit="-", min=0.1, max=1.0, description="the IK's friction cones use margin * mu")
     min_normal_force: float = param(2.0, unit="N", min=0.0, description="least normal force per regular unilateral contact point")
+    sole_cop_margin: float = param(0.0, unit="m", min=0.0, max=0.05, description=(
+        "the IK's statics count a flat sole's corners this far inside its edges (the CoP kept off them)"))
     joint_limit_margin: float = param(0.01, unit="rad", min=0.0, description="kept away from the position limits")
 
 
@@ -143,6 +145,8 @@ class PlanningParams:
     friction_margin: float = param(0.95, unit="-", min=0.1, max=1.0, description="planner's own checks use margin * mu")
     min_normal_force: float = param(3.0, unit="N", min=0.0, description=(
         "planner's own checks: least normal force per unilateral contact point (keeps the CoP off the sole edges)"))
+    sole_cop_margin: float = param(0.02, unit="m", min=0.0, max=0.05, description=(
+        "planner's own checks: a flat sole's corners count this far inside its edges (the CoP kept off them)"))
     approach_tolerance: float = param(0.03, unit="m", min=0.0, description=(
         "a foot already this close to its approach position on the ground does not step"))
 
