@@ -20,7 +20,7 @@ GRID = ROOT.parent / "shared" / "bench" / "ladder_grid.yaml"
 SUBSET = [(75.0, 0.25), (70.0, 0.29), (72.0, 0.23), (70.0, 0.26), (70.0, 0.32), (90.0, 0.35)]
 # planned in the recorded sweeps (docs/planner.md); 90 deg / 35 cm is beyond the library (knees on the rungs)
 EXPECTED_SOLVED = {(75.0, 0.25), (70.0, 0.29), (72.0, 0.23), (70.0, 0.26)}
-TIMEOUT_S = 60.0
+TIMEOUT_S = 20.0  # [s] the solved ones plan in 3-4 s; 90 deg / 35 cm ends at this time limit
 
 
 def grid_doc() -> dict:
