@@ -10,6 +10,7 @@ from sim_bridge.backend import ResetRequest
 from sim_bridge.commands import GripperRequest
 from sim_bridge.pybullet_backend import PyBulletBackend
 from sim_bridge.simple_control import GravityCompensatedPd
+from sim_bridge.world_bodies import surface_lateral_friction
 
 pytestmark = pytest.mark.sim
 
@@ -90,4 +91,4 @@ def test_the_ground_is_a_finite_box_with_its_top_at_zero(backend):
     hit = p.rayTest([3.0, 2.0, 1.0], [3.0, 2.0, -1.0], physicsClientId=cid)[0]
     assert hit[0] == backend.ground_body and hit[3][2] == pytest.approx(0.0, abs=1e-6)
     mu = p.getDynamicsInfo(backend.ground_body, -1, physicsClientId=cid)[1]
-    assert mu == pytest.approx(backend.env.pybullet_lateral_friction(backend.env.surfaces["ground"]))
+    assert mu == pytest.approx(surface_lateral_friction(backend.env, backend.env.surfaces["ground"]))

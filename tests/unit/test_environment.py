@@ -6,9 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from climb_core.environment import (GROUND_HALF_SIZE, PYBULLET_FRICTION_COMBINATION, ROLES, build_environment,
-                                    pybullet_friction, quaternion_xyzw, rpy_deg_to_matrix)
+from climb_core.environment import GROUND_HALF_SIZE, ROLES, build_environment, quaternion_xyzw, rpy_deg_to_matrix
 from climb_core.errors import SpecError
+from sim_bridge.world_bodies import (PYBULLET_FRICTION_COMBINATION, pybullet_friction, robot_lateral_friction,
+                                     surface_lateral_friction)
 from climb_core.ladder import load_scenario, parse_scenario
 
 
@@ -188,10 +189,10 @@ def test_friction_and_names():
             assert surface.friction == env.ladder.friction == 0.5
     assert PYBULLET_FRICTION_COMBINATION == "product"
     assert pybullet_friction(0.25) == pytest.approx(0.5)
-    assert env.robot_lateral_friction ** 2 == pytest.approx(0.5)
+    assert robot_lateral_friction(env) ** 2 == pytest.approx(0.5)
     # product with the robot's sqrt(mu) gives each surface's own coefficient
     for surface in env.surfaces.values():
-        assert env.pybullet_lateral_friction(surface) * env.robot_lateral_friction == pytest.approx(surface.friction)
+        assert surface_lateral_friction(env, surface) * robot_lateral_friction(env) == pytest.approx(surface.friction)
     with pytest.raises(SpecError):
         pybullet_friction(0.0)
     with pytest.raises(SpecError) as info:

@@ -123,3 +123,11 @@ def test_the_core_is_simulator_free():
                  for path in sorted((ROOT / "src" / "climb_core" / "climb_core").rglob("*.py"))
                  for line in _imports_of(path, "pybullet")]
     assert not offenders, f"climb_core modules importing pybullet: {offenders}"
+    # nor does it carry the simulator's rules (PyBullet's friction combination, its body poses)
+    import ast
+
+    rules = [f"{path.relative_to(ROOT)}:{node.lineno} {node.name}"
+             for path in sorted((ROOT / "src" / "climb_core" / "climb_core").rglob("*.py"))
+             for node in ast.walk(ast.parse(path.read_text()))
+             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and "pybullet" in node.name.lower()]
+    assert not rules, f"PyBullet code in climb_core (sim_bridge.world_bodies owns it): {rules}"

@@ -14,6 +14,7 @@ import pytest
 from climb_core.collision import checker
 from climb_core.environment import ROLES, build_environment
 from climb_core.errors import SpecError
+from sim_bridge.world_bodies import robot_lateral_friction, surface_lateral_friction
 from climb_core.ladder import load_scenario, parse_scenario
 from climb_core.robot import load_robot
 from climb_core.scene import require_search_strategy
@@ -105,16 +106,16 @@ def test_no_ladder_methods_raise_and_friction_rule():
         assert info.value.field == "ladder" and "ladder: block" in info.value.rule
     assert env.rails() == {} and env.rungs() == [] and "scene" in repr(env)
     mu_ground = env.surfaces["ground"].friction
-    assert env.robot_lateral_friction == pytest.approx(math.sqrt(mu_ground))
+    assert robot_lateral_friction(env) == pytest.approx(math.sqrt(mu_ground))
     for surface in env.surfaces.values():  # PyBullet's product gives every surface its own mu
-        assert env.pybullet_lateral_friction(surface) * env.robot_lateral_friction == pytest.approx(surface.friction)
+        assert surface_lateral_friction(env, surface) * robot_lateral_friction(env) == pytest.approx(surface.friction)
     ladder_scene = build_environment({"ladder": {"friction": 0.36},
                                       "scene": {"ground": {"friction": 0.5}, "surfaces": [
                                           {"name": "box", "shape": "box", "size": [1, 1, 1], "position": [3, 0, 0.5],
                                            "friction": 0.9, "contact": ["foot"]}]}})
-    assert ladder_scene.robot_lateral_friction == pytest.approx(0.6)  # sqrt(ladder friction), as before
+    assert robot_lateral_friction(ladder_scene) == pytest.approx(0.6)  # sqrt(ladder friction), as before
     assert ladder_scene.surfaces["ground"].friction == 0.5  # the scene's explicit ground wins
-    assert ladder_scene.pybullet_lateral_friction(ladder_scene.surfaces["box"]) * 0.6 == pytest.approx(0.9)
+    assert surface_lateral_friction(ladder_scene, ladder_scene.surfaces["box"]) * 0.6 == pytest.approx(0.9)
 
 
 def test_place_at_start_moves_and_turns_the_standing_robot(g1):

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from climb_core.environment import build_environment
 from climb_core.errors import SpecError
+from sim_bridge.world_bodies import robot_lateral_friction
 from climb_core.ladder import available_ladders, available_scenes, load_scenario, parse_scenario
 from climb_core.scene import BILATERAL_MAX_WIDTH, ladder_surface_names
 
@@ -233,7 +234,7 @@ def test_ladder_plus_scene_builds_both_and_checks_names():
     assert list(env.surfaces)[:2] == ["ground", "rung_1"] and list(env.surfaces)[-2:] == ["cage_bar", "landing"]
     assert env.n_rungs == 6 and env.goal is None and env.start_pose.x == -0.1
     assert env.surfaces["landing"].role == "scene" and env.surfaces["landing"].friction == 0.7
-    assert env.robot_lateral_friction == pytest.approx(math.sqrt(0.25))  # the ladder's rule is unchanged
+    assert robot_lateral_friction(env) == pytest.approx(math.sqrt(0.25))  # the ladder's rule is unchanged
     # every name the ladder builds is reserved, names it does not build are free
     for name in ("rung_6", "stringer_left", "ground"):
         doc = mutated("scene.surfaces[1].name", name, ladder_and_cage())

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from climb_core.environment import build_environment
-from sim_bridge.world_bodies import ROLE_COLOURS, add_environment
+from sim_bridge.world_bodies import ROLE_COLOURS, add_environment, robot_lateral_friction, surface_lateral_friction
 
 pytestmark = pytest.mark.sim
 
@@ -39,7 +39,7 @@ def test_pybullet_bodies_match_the_surfaces(bullet):
     for name, body in ids.items():
         assert pb.getDynamicsInfo(body, -1, physicsClientId=client)[0] == 0.0  # static
         friction = pb.getDynamicsInfo(body, -1, physicsClientId=client)[1]
-        assert friction == pytest.approx(env.pybullet_lateral_friction(env.surfaces[name]))
+        assert friction == pytest.approx(surface_lateral_friction(env, env.surfaces[name]))
     assert pb.getDynamicsInfo(ids["rung_2"], -1, physicsClientId=client)[1] == pytest.approx(math.sqrt(0.5))
     assert pb.getDynamicsInfo(ids["ground"], -1, physicsClientId=client)[1] == pytest.approx(0.8 / math.sqrt(0.5))
     for name in ("rung_3", "rail_left", "platform", "stringer_right"):
@@ -73,7 +73,7 @@ def _slide(pb, client, env, position, push_ratio: float, mu: float) -> float:
     half = 0.05
     shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[half] * 3, physicsClientId=client)
     box = pb.createMultiBody(1.0, shape, -1, [position[0], position[1], position[2] + half], physicsClientId=client)
-    pb.changeDynamics(box, -1, lateralFriction=env.robot_lateral_friction, physicsClientId=client)
+    pb.changeDynamics(box, -1, lateralFriction=robot_lateral_friction(env), physicsClientId=client)
     for _ in range(60):  # settle
         pb.stepSimulation(physicsClientId=client)
     start = np.array(pb.getBasePositionAndOrientation(box, physicsClientId=client)[0])
@@ -107,12 +107,12 @@ def test_a_scene_has_one_body_per_surface_with_its_pose_and_friction(bullet):
     env = build_environment("car_ingress")
     ids = add_environment(env, client)
     assert set(ids) == set(env.surfaces) and pb.getNumBodies(physicsClientId=client) == len(env.surfaces)
-    assert env.robot_lateral_friction == pytest.approx(math.sqrt(env.surfaces["ground"].friction))
+    assert robot_lateral_friction(env) == pytest.approx(math.sqrt(env.surfaces["ground"].friction))
     for name, body in ids.items():
         surface = env.surfaces[name]
         mass, friction = pb.getDynamicsInfo(body, -1, physicsClientId=client)[:2]
         assert mass == 0.0
-        assert friction * env.robot_lateral_friction == pytest.approx(surface.friction)
+        assert friction * robot_lateral_friction(env) == pytest.approx(surface.friction)
         if surface.shape == "plane":
             continue
         lo, hi = (np.array(v) for v in pb.getAABB(body, physicsClientId=client))

@@ -58,16 +58,9 @@ a coal Box of ``GROUND_COLLISION_THICKNESS`` whose top face is z = 0, and a PyBu
 
 Friction: every ladder surface (rungs, treads, rails, stringers, platform, obstacles) has the
 spec's ``friction``; a scene surface has its own ``friction``; the ground has the scene's
-``ground.friction`` if given, else the ladder's ``ground_friction``, else 0.8. PyBullet combines
-the two bodies' lateral friction coefficients by *product* (``PYBULLET_FRICTION_COMBINATION``).
-The robot's links must all be given ``Environment.robot_lateral_friction``: sqrt(ladder friction)
-with a ladder, sqrt(ground friction) without one (see :func:`pybullet_friction`), and each
-surface gets ``friction / robot_lateral_friction``, so every robot-surface contact has exactly the
-surface's ``friction`` (ladder: sqrt(mu) on both sides; ground: 0.8 / sqrt(mu); a scene without
-ladder: sqrt(mu_ground) on the robot, mu_s / sqrt(mu_ground) on surface s). Any positive robot
-value gives the same robot-surface coefficients; the square root of the dominant surface's keeps
-the bodies' values near 1 and makes robot-robot and robot-object contacts (thrown drops) have that
-surface's coefficient.
+``ground.friction`` if given, else the ladder's ``ground_friction``, else 0.8
+(``Environment.dominant_friction``: the ladder's, or the ground's without one, is what the
+simulator's bodies are balanced on: sim_bridge.world_bodies).
 
 Perturbation (``build_environment(..., perturbed=True)``): rung k moves by (dx, 0, dz) in L
 (its own offset only; stringers, rails and platform keep their nominal places) and the rails move
@@ -86,13 +79,11 @@ from .ladder import DEFAULTS, LadderSpec, PerturbationSpec, Scenario, load_scena
 from .scene import CONTACT_LIMBS, DEFAULT_GROUND_FRICTION, GoalSpec, SceneSpec, StartSpec
 
 __all__ = [
-    "PYBULLET_FRICTION_COMBINATION", "TREAD_LADDERS", "GROUND_HALF_SIZE", "GROUND_COLLISION_THICKNESS", "R_SURFACE_CYLINDER",
-    "ROLES", "ROLE_USE", "Surface", "Environment", "build_environment", "pybullet_friction", "rpy_deg_to_matrix",
+    "TREAD_LADDERS", "GROUND_HALF_SIZE", "GROUND_COLLISION_THICKNESS", "R_SURFACE_CYLINDER",
+    "ROLES", "ROLE_USE", "Surface", "Environment", "build_environment", "rpy_deg_to_matrix",
     "quaternion_xyzw",
 ]
 
-#: How PyBullet combines the lateral friction of two touching bodies.
-PYBULLET_FRICTION_COMBINATION = "product"
 #: [m] half size of the ground's finite collision box / visual (the PyBullet plane is infinite).
 GROUND_HALF_SIZE = 50.0
 #: [m] thickness of the ground's coal collision box (top face at z = 0).
@@ -110,17 +101,6 @@ ROLE_USE: dict[str, tuple[tuple[str, ...], bool]] = {
     "ground": (("foot",), False), "rung": (("foot", "hand"), True), "tread": (("foot",), False),
     "rail": (("hand",), True), "stringer": ((), False), "platform": (("foot",), False), "obstacle": ((), False),
 }
-
-
-def pybullet_friction(mu: float, partner: float | None = None) -> float:
-    """Lateral friction to give one PyBullet body so that its contacts have coefficient ``mu``.
-
-    PyBullet multiplies the two bodies' coefficients. With ``partner=None`` both bodies get the
-    same value, sqrt(mu); otherwise this body gets mu / partner.
-    """
-    if not mu > 0.0:
-        raise SpecError("friction", f"must be > 0, got {mu!r}")
-    return math.sqrt(mu) if partner is None else mu / partner
 
 
 # --------------------------------------------------------------------------------------------
@@ -253,11 +233,6 @@ class Surface:
             return coal.Cylinder(self.radius, self.length)
         return coal.Box(*(2.0 * self.primitive_half_extents()))
 
-    def pybullet_pose(self) -> tuple[list[float], list[float]]:
-        """(position, quaternion xyzw) of the PyBullet body (plane: the world origin)."""
-        T = self.T_world_surface if self.shape == "plane" else self.T_world_primitive()
-        return T[:3, 3].tolist(), list(quaternion_xyzw(T[:3, :3]))
-
 
 # --------------------------------------------------------------------------------------------
 # The environment.
@@ -366,16 +341,12 @@ class Environment:
         return self.T_world_ladder[:3, :3] @ np.array([math.cos(a), 0.0, math.sin(a)])
 
     @property
-    def robot_lateral_friction(self) -> float:
-        """PyBullet lateralFriction the robot's links must have: sqrt of the ladder's friction,
-        or of the ground's without a ladder (module docstring)."""
+    def dominant_friction(self) -> float:
+        """Friction of the surface the robot mostly touches: the ladder's, or the ground's
+        without a ladder (the simulator balances its bodies' coefficients on it)."""
         if self.ladder is not None:
-            return pybullet_friction(self.ladder.friction)
-        return pybullet_friction(self.surfaces["ground"].friction)
-
-    def pybullet_lateral_friction(self, surface: Surface) -> float:
-        """PyBullet lateralFriction of a surface, so that robot contacts on it have its friction."""
-        return pybullet_friction(surface.friction, partner=self.robot_lateral_friction)
+            return float(self.ladder.friction)
+        return float(self.surfaces["ground"].friction)
 
     def collision_objects(self) -> list[tuple[str, Any, Any]]:
         """(surface name, coal.CollisionGeometry, coal.Transform3s of the primitive) per surface."""

@@ -29,6 +29,7 @@ from .motor import MotorParams
 from .params import BridgeParams, load_bridge_params
 from .sim_urdf import sim_urdf_path
 from .world import initial_configuration, resolve_scenario
+from . import world_bodies
 from .world_bodies import add_environment
 
 
@@ -207,8 +208,8 @@ class PyBulletBackend(Backend):
         for link in [-1] + list(range(n)):
             info = p.getDynamicsInfo(body, link, physicsClientId=cid)
             self.T_link_inertial[link] = frames.pose_matrix(info[3], info[4])
-        # friction: PyBullet multiplies both bodies' coefficients (environment.pybullet_friction)
-        mu_robot = self.env.robot_lateral_friction
+        # friction: PyBullet multiplies both bodies' coefficients (world_bodies' module docstring)
+        mu_robot = world_bodies.robot_lateral_friction(self.env)
         for link in [-1] + list(range(n)):
             p.changeDynamics(body, link, lateralFriction=mu_robot, restitution=0.0, rollingFriction=0.0,
                              spinningFriction=0.0, physicsClientId=cid)
@@ -868,7 +869,7 @@ class PyBulletBackend(Backend):
                                          physicsClientId=cid)
         ball = p.createMultiBody(baseMass=request.mass, baseCollisionShapeIndex=shape, baseVisualShapeIndex=visual,
                                  basePosition=start.tolist(), physicsClientId=cid)
-        p.changeDynamics(ball, -1, restitution=d.restitution, lateralFriction=self.env.robot_lateral_friction,
+        p.changeDynamics(ball, -1, restitution=d.restitution, lateralFriction=world_bodies.robot_lateral_friction(self.env),
                          physicsClientId=cid)
         p.resetBaseVelocity(ball, (v0 * direction).tolist(), [0.0, 0.0, 0.0], physicsClientId=cid)
         self.balls.append(_Ball(ball, request.mass, self.time, v0 * direction))
