@@ -201,3 +201,16 @@ def test_plan_script_exits_2_with_the_reason_and_the_scene_fields():
     assert summary["success"] is False and summary["failure_reason"].startswith("spec: strategy:")
     assert (summary["scene"], summary["rungs_requested"], summary["rungs_reached"]) == ("narrow_passage", 0, 0)
     assert summary["goal_reached"] is False and summary["contacts_used"] == []
+
+
+@pytest.mark.parametrize("item, field", [("planning.sole_cop_margin", "--set"),
+                                         ("planning.no_such_setting=1", "--set.planning.no_such_setting"),
+                                         ("planning.sole_cop_margin=0.5", "--set.planning.sole_cop_margin")])
+def test_plan_script_set_refuses_a_bad_override_naming_it(item, field):
+    """scripts/plan.py --set GROUP.FIELD=VALUE: a malformed item, an unknown setting and a value out
+    of its range each exit 2 with the field named, before any planning."""
+    root = pathlib.Path(__file__).resolve().parents[2]
+    run = subprocess.run([sys.executable, str(root / "scripts" / "plan.py"), "--set", item],
+                         capture_output=True, text=True, timeout=120, cwd=root)
+    assert run.returncode == 2, (run.stdout, run.stderr)
+    assert f"error: {field}" in run.stderr and "Traceback" not in run.stderr, run.stderr
