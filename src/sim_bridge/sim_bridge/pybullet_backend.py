@@ -30,7 +30,6 @@ from .params import BridgeParams, load_bridge_params
 from .sim_urdf import sim_urdf_path
 from .world import initial_configuration, resolve_scenario
 from . import world_bodies
-from .world_bodies import add_environment
 
 
 def _import_pybullet():
@@ -144,7 +143,7 @@ class PyBulletBackend(Backend):
         self.rng = np.random.default_rng(seed)
         self._connect()
         cid = self.client
-        self.env_bodies = add_environment(self.env, cid)
+        self.env_bodies = world_bodies.add_environment(self.env, cid)
         self._replace_ground_plane()
         self.ground_body = self.env_bodies.get("ground", -1)
         self._env_body_set = set(self.env_bodies.values())
