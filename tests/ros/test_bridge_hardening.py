@@ -247,3 +247,51 @@ def test_failed_reset_in_lockstep_keeps_the_tick_going():
         out = proc.output()
         proc.close()
     assert code == 0 and "Traceback" not in out, out[-3000:]
+
+
+def test_a_controller_that_joins_after_the_first_state_gets_it_again_and_the_loop_runs():
+    """A lock-step bridge that started without a controller (startup wait 0) publishes its t = 0
+    state before anyone listens: DDS drops it for the late reader (VOLATILE). Until the first
+    command arrives the bridge publishes the awaited state again (lockstep.resend_s, doubling), so
+    a controller that joins 2 s late still gets it, answers, and the ticks run with no controller
+    reported lost (test_controller_node's CI failure: the observer missed state 0 and waited)."""
+    import array as _array
+
+    from climb_msgs.msg import JointCommand
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import JointState
+
+    proc = NodeProcess.module("sim_bridge.node", "-r", "__ns:=/late_join", "-p", "lockstep.startup_wait_s:=0.0",
+                              "-p", "lockstep.command_timeout_s:=120.0", "-p", "lockstep.resend_s:=0.25",
+                              name="sim_bridge_late_join")
+    client = Client("bridge_late_join")
+    try:
+        assert client.spin_until(lambda: "starting the lock-step anyway" in proc.output(), START_TIMEOUT_S, [proc]), \
+            proc.tail()
+        client.spin(2.0)  # the state stamped 0 went out with nobody listening
+        diags: list = []
+        stamps: list[float] = []
+        pub = client.node.create_publisher(JointCommand, "/late_join/joint_command", client.qos("joint_command"))
+
+        def answer(msg) -> None:
+            stamps.append(stamp_s(msg))
+            cmd = JointCommand(names=list(msg.name), modes=_array.array("B", [JointCommand.DAMPING] * len(msg.name)),
+                               values=_array.array("d", [0.0] * len(msg.name)))
+            cmd.header.stamp = msg.header.stamp
+            pub.publish(cmd)
+
+        client.node.create_subscription(JointState, "/late_join/joint_states", answer, client.qos("joint_states"))
+        client.node.create_subscription(DiagnosticArray, "/late_join/diagnostics",
+                                        lambda m: diags.extend(m.status), client.qos("diagnostics"))
+        assert client.spin_until(lambda: len(stamps) > 40, 60.0, [proc]), (stamps[:5], proc.tail())
+        assert stamps[0] == 0.0  # the first state it saw is the one sent before it joined
+        ticks = sorted({round(t / 0.005) for t in stamps})
+        assert ticks[:40] == list(range(40)), ticks[:10]  # then every tick, no gap
+        assert not [d.message for d in diags if "controller lost" in d.message]
+        assert not [d.message for d in diags if d.name.endswith("/command")], "an echoed answer was reported"
+    finally:
+        client.close()
+        code = proc.stop()
+        out = proc.output()
+        proc.close()
+    assert code == 0 and "Traceback" not in out, out[-3000:]

@@ -397,7 +397,7 @@ def observer_main(out_path: str) -> int:
     # loop for a while; the samples wait in DDS instead of being overwritten (depth 10 lost ~7 %
     # of the states once in CI)
     reliable = QoSProfile(depth=2000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-    rec = {"states": [], "answered": set(), "fsm": [], "lost": False, "z": [], "failures": 0, "diag": {},
+    rec = {"states": set(), "answered": set(), "fsm": [], "lost": False, "z": [], "failures": 0, "diag": {},
            "inactive_cmds": 0, "active": False, "grasp": "", "lifecycle": []}
 
     rclpy.init()
@@ -405,7 +405,7 @@ def observer_main(out_path: str) -> int:
     plan_pub = node.create_publisher(WholeBodyPlan, "whole_body_plan", QoSProfile(depth=1))
 
     def on_state(msg: JointState) -> None:
-        rec["states"].append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        rec["states"].add(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)  # re-sent states: once
 
     def on_command(msg: JointCommand) -> None:
         if not rec["active"]:
@@ -463,7 +463,7 @@ def observer_main(out_path: str) -> int:
         rec["lifecycle"].append(lifecycle_state())
         sent = False
         deadline = time.monotonic() + 120.0
-        while (not rec["states"] or rec["states"][-1] < TICKS * 5_000_000) and time.monotonic() < deadline:
+        while (not rec["states"] or max(rec["states"]) < TICKS * 5_000_000) and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
             if not sent and rec["answered"]:
                 plan_pub.publish(whole_body_plan_to_msg(plan))
@@ -473,13 +473,13 @@ def observer_main(out_path: str) -> int:
         end = time.monotonic() + 10.0
         quiet_until = time.monotonic() + 0.5
         while time.monotonic() < end and (time.monotonic() < quiet_until
-                                          or not set(rec["states"]) <= rec["answered"]):
+                                          or not rec["states"] <= rec["answered"]):
             executor.spin_once(timeout_sec=0.05)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
     result = {"lifecycle": rec["lifecycle"], "commands_while_inactive": rec["inactive_cmds"],
-              "n_states": len(rec["states"]), "answered": len(rec["answered"] & set(rec["states"])),
+              "n_states": len(rec["states"]), "answered": len(rec["answered"] & rec["states"]),
               "last_stamp_ns": max(rec["states"]), "first_stamp_ns": min(rec["states"]),
               "lost": rec["lost"], "fsm_states": rec["fsm"], "max_qp_failures": rec["failures"],
               "grasp_latched": rec["grasp"], "min_base_z": float(np.min(rec["z"])), "base_z0": float(rec["z"][0]),

@@ -89,8 +89,8 @@ def test_lockstep_accepts_only_the_command_stamped_for_the_current_tick():
     state = bridge.step_lockstep()
     assert state.stamp_ns == PERIOD_NS and np.allclose(state.tau, [1.0, 2.0, 3.0])
     assert not bridge.command_ready()  # the next tick needs its own command
-    stale = bridge.offer_command(NAMES, [TORQUE] * 3, [9.0, 9.0, 9.0], stamp_ns=0)
-    assert not stale.accepted and bridge.stale == 2
+    again = bridge.offer_command(NAMES, [TORQUE] * 3, [9.0, 9.0, 9.0], stamp_ns=0)  # tick 0 ran on its answer
+    assert not again.accepted and again.reason == "duplicate" and bridge.stale == 1
 
 
 def test_with_one_tick_of_latency_each_period_runs_on_the_previous_tick_s_command():
@@ -161,6 +161,29 @@ def test_lost_controller_damps_every_joint_and_is_reported_then_recovers():
     state = bridge.step_lockstep()
     assert not bridge.controller_lost and np.allclose(state.tau, 5.0)
     assert any("back" in d.message for d in bridge.drain_diagnostics())
+
+
+def test_the_first_state_may_be_sent_again_until_answered_and_an_echoed_answer_is_no_news():
+    """lockstep.resend_s: until a world's first command arrives the node may publish the awaited
+    state again (a controller that matched after the first send); a controller answers such a
+    state with the same command again, and that echo arriving after the tick ran is dropped
+    without a stale-command report."""
+    bridge = make()
+    assert bridge.awaiting_first_command
+    assert bridge.offer_command(NAMES, [TORQUE] * 3, [1.0, 2.0, 3.0], stamp_ns=0).accepted
+    assert not bridge.awaiting_first_command
+    bridge.step_lockstep()
+    bridge.drain_diagnostics()
+    echo = bridge.offer_command(NAMES, [TORQUE] * 3, [1.0, 2.0, 3.0], stamp_ns=0)
+    assert not echo.accepted and echo.reason == "duplicate" and not bridge.command_ready()
+    assert bridge.stale == 0 and not bridge.drain_diagnostics()
+    older = bridge.offer_command(NAMES, [TORQUE] * 3, [1.0, 2.0, 3.0], stamp_ns=PERIOD_NS * 7)
+    assert older.reason == "stale" and bridge.stale == 1  # anything else off-stamp is still reported
+    bridge.reset()
+    assert bridge.awaiting_first_command  # a new world: its first state may be sent again
+    lost = make()
+    lost.step_lockstep()  # nothing came: lost, and the states now flow at the lost pace anyway
+    assert lost.controller_lost and not lost.awaiting_first_command
 
 
 def test_a_reset_world_waits_longer_for_its_first_command_then_the_usual_bounds_apply():

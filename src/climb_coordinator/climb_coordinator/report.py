@@ -137,7 +137,7 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
                 t = _stamp(msg.header) / _NS
                 if t < last["js"]:  # a reset: start over
                     js_t, js_q, js_e = [], [], []
-                elif t - last["js"] < min_dt:
+                elif t == last["js"] or t - last["js"] < min_dt:  # a state the bridge sent again, or decimated
                     continue
                 last["js"] = t
                 if not run.joint_names:
@@ -152,7 +152,7 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
                 t = _stamp(msg.header) / _NS
                 if t < last["base"]:
                     base_t, base_pose = [], []
-                elif t - last["base"] < min_dt:
+                elif t == last["base"] or t - last["base"] < min_dt:
                     continue
                 last["base"] = t
                 p, o = msg.pose.pose.position, msg.pose.pose.orientation
@@ -190,7 +190,7 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
                 series = ft.setdefault(topic[3:], [])
                 if series and t < series[-1][0]:
                     series.clear()
-                if series and t - series[-1][0] < max(min_dt, 0.0) and min_dt:
+                if series and (t == series[-1][0] or t - series[-1][0] < min_dt):
                     continue
                 series.append((t, (f.x, f.y, f.z)))
             elif topic == "climb/request":

@@ -370,6 +370,11 @@ class ControllerNode(LifecycleNode):
         self._latest[key] = value
         self._stamps[key] = stamp_ns
         if self.active and self.params.execution == "lockstep":
+            if key == "base" and stamp_ns == self._last_stamp >= 0:
+                # a state answered already, published again by a bridge still awaiting its first
+                # command (its reader may have matched after the first answer): the same answer
+                self.pub_command.publish(self._cmd.payload())
+                return
             self._try_lockstep_tick()
 
     def _reject_input(self, topic: str, err: Exception) -> None:

@@ -66,6 +66,7 @@ class SimBridge:
         self._early: ActuatorCommand | None = None  # delay 1: the answer to the current stamp, come early
         self._last_valid: ActuatorCommand | None = None
         self._last_command_wall = -np.inf
+        self._answered_ns = -1  # stamp of the last command taken for its tick (an echo of it is no news)
         self.controller_lost = False
         self.first_command_wait = False  # a world reset by sim/reset waits longer for its first command
         self.watchdog_active = False
@@ -91,6 +92,7 @@ class SimBridge:
         self._early = None
         self._last_valid = None
         self._last_command_wall = -np.inf
+        self._answered_ns = -1
         self.controller_lost = False
         self.first_command_wait = False
         self.watchdog_active = False
@@ -128,6 +130,10 @@ class SimBridge:
             # delay 1: the command of the current stamp may overtake the awaited one's (lost or
             # late); it is kept for the next period instead of being thrown away
             early = stamp_ns == self.stamp_ns
+            if stamp_ns == self._answered_ns:
+                # the controller's answer sent again for a state published again (lockstep.resend_s)
+                # that reached it after its first answer did: that tick ran already
+                return Verdict(False, "duplicate")
             if not early:
                 self.stale += 1
                 self._diag(WARN, "command", f"ignored a command stamped {stamp_ns * 1e-9:.3f} s while waiting "
@@ -152,6 +158,7 @@ class SimBridge:
             self._early = cmd
         elif lockstep:
             self._pending = cmd
+            self._answered_ns = stamp_ns
         return Verdict(True)
 
     def offer_gripper(self, request: GripperRequest) -> None:
@@ -167,6 +174,12 @@ class SimBridge:
     def command_ready(self) -> bool:
         """The command for the current tick arrived (or was rejected: the tick may go on)."""
         return self._pending is not None
+
+    @property
+    def awaiting_first_command(self) -> bool:
+        """No valid command reached this world yet (since start or the last sim/reset), and the
+        controller is not declared lost: the state it awaits may be published again."""
+        return self._last_valid is None and not self.controller_lost
 
     def step_lockstep(self) -> SimState:
         """Step one control period on the command of this tick, or damp if the controller is lost."""

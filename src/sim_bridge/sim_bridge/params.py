@@ -55,6 +55,12 @@ class LockstepParams:
                                 "lost, when longer than command_timeout_s (config/graph.yaml: 600 s, the "
                                 "climb coordinator activates the controller once the first plan exists and "
                                 "the world stays at t = 0 meanwhile; 0: command_timeout_s)")
+    resend_s: float = param(0.5, unit="s", min=0.0, description="until the first command of a world arrived, "
+                            "the awaited state is published again after resend_s of wall time, then at doubling "
+                            "intervals: a controller "
+                            "whose subscription matched after the first send (DDS drops what a VOLATILE reader "
+                            "missed) still gets it; a controller answers a stamp once and sends the same "
+                            "command again for a state it already answered; 0: never")
     command_delay_ticks: int = param(0, unit="-", choices=(0, 1), description="actuation latency in control "
                                      "ticks: 0 applies the command stamped t over [t, t + T) (the bridge waits "
                                      "for it); 1 applies it over [t + T, t + 2T) like a robot whose command "

@@ -52,7 +52,7 @@ _NS = 1_000_000_000
 #: parameters a set_parameters call may change while running (read each tick); every other one is
 #: read-only (the world is built from it: use sim/reset, or restart the node)
 LIVE_PARAMS = ("max_ticks", "lockstep.command_timeout_s", "lockstep.lost_retry_s", "lockstep.startup_wait_s",
-               "realtime.watchdog_s", "diagnostics.period_s", "contacts.rate_hz")
+               "lockstep.resend_s", "realtime.watchdog_s", "diagnostics.period_s", "contacts.rate_hz")
 #: errors a raw message's decoding may raise (ours, then rclpy's / Fast CDR's)
 _DECODE_ERRORS = (cdr.CdrError, IndexError, OverflowError, UnicodeDecodeError) + node_kit.DESERIALIZE_ERRORS
 
@@ -355,10 +355,19 @@ class SimBridgeNode(Node):
             self.flush_diagnostics()
             published = time.monotonic()
             deadline = published + self.bridge.wait_budget()
+            resend = self.params.lockstep.resend_s
+            resend_at = published + resend
             while not self.bridge.command_ready() and not self._restart:
-                remaining = deadline - time.monotonic()
+                now = time.monotonic()
+                remaining = deadline - now
                 if remaining <= 0.0 or not node_kit.running():
                     break
+                if resend > 0.0 and now >= resend_at and self.bridge.awaiting_first_command:
+                    # a reader that matched after the first send never gets it (VOLATILE); the
+                    # interval doubles: a world waiting minutes for its plan sends a few copies
+                    self.publish_state(self.bridge.state)
+                    resend *= 2.0
+                    resend_at = now + resend
                 executor.spin_once(timeout_sec=min(remaining, 0.1))
             if self._restart:
                 continue  # reset while waiting: publish the new t = 0 state
