@@ -100,7 +100,7 @@ class KinematicLoop:
         depth = float((p - point) @ direction)
         if depth > 0.0:  # the rung pushes the hand back; the hand pushes the wrist back
             sensor = c.limbs["right_hand"].ft_sensor
-            R = data.oMf[c._ft_frames[sensor]].rotation
+            R = data.oMf[c.ft.frames[sensor]].rotation
             out[sensor][:3] = R.T @ (-self.k_wall * depth * direction)
         return out
 

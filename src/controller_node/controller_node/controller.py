@@ -19,7 +19,6 @@ good feed-forward. Never NaN, never garbage.
 """
 from __future__ import annotations
 
-import math
 import pathlib
 import time
 from dataclasses import dataclass, field
@@ -35,6 +34,7 @@ from .compliance import ComplianceLaw, MotorArrays, PwmGainArrays
 from .constraints import ActiveContact, CollisionAvoidance, contact_from_hold
 from .estimator import RobotState
 from .fsm import Fsm, FsmTable, limb_kind, load_fsm_table
+from .ft_monitor import FtMonitor, ft_sensor_frames
 from .params import ControllerParams
 from .qp import QpFailure, save_problem
 from .reference import PathReference
@@ -143,9 +143,9 @@ class Controller:
         self.limb_frame_ids = {name: robot.frame_id(limb.surface.frame) for name, limb in self.limbs.items()}
         self.limb_surface = {name: np.asarray(limb.surface.T_frame_surface, float) for name, limb in self.limbs.items()}
         self.limb_links = {name: _limb_links(robot, limb.surface.frame) for name, limb in self.limbs.items()}
-        self._ft_frames = self._find_ft_frames(robot)
-        self._ft_limbs = [(limb, spec.ft_sensor, self._ft_frames[spec.ft_sensor]) for limb, spec in self.limbs.items()
-                          if spec.ft_sensor in self._ft_frames]  # (limb, sensor, frame id)
+        self.ft = FtMonitor(ft_sensor_frames(robot.model, robot.config.ft_sensors),
+                            [(limb, spec.ft_sensor) for limb, spec in self.limbs.items()], params.guarded,
+                            params.control_period_s)
         gains = PwmGainArrays.from_robot_config(robot.config, self.joint_names)
         scale = params.compliance.gain_scale
         self.compliance = ComplianceLaw(PwmGainArrays(gains.kp * scale, gains.kd * scale),
@@ -191,11 +191,6 @@ class Controller:
         #: the last placement's surface offset: (limb, surface, world translation [m] of the surface
         #: from where the plan had it, along the approach; signed distance [m], < 0 early)
         self.placement_offset: tuple[str, str, np.ndarray, float] | None = None
-        # F/T
-        self._ft_filtered: dict[str, np.ndarray] = {}
-        self._ft_tare: dict[str, np.ndarray] = {}
-        self._ft_raw: dict[str, np.ndarray] = {}  # limb -> last raw F/T force in world axes [N]
-        self._ft_noise_var: dict[str, float] = {}  # limb -> estimated raw noise variance per component [N^2]
         self._approach: dict[str, np.ndarray] = {}  # limb -> unit approach direction (world)
         # outputs / bookkeeping
         self.grippers_out: list[GripperRequest] = []
@@ -229,18 +224,6 @@ class Controller:
                                   c.security_distance, c.damping, c.broadphase_margin, c.max_braking,
                                   c.broadphase_slack)
 
-    def _find_ft_frames(self, robot) -> dict[str, int]:
-        """sensor -> frame id of the sensor joint's child link (the frame of the wrench)."""
-        model = robot.model
-        out = {}
-        for sensor, joint in robot.config.ft_sensors.items():
-            jid = model.getJointId(joint)
-            for fid, frame in enumerate(model.frames):
-                if frame.parentJoint == jid and frame.type == pin.FrameType.BODY:
-                    out[sensor] = fid
-                    break
-        return out
-
     # ------------------------------------------------------------------ public API
     def reset(self, state: RobotState, stance: Stance | None = None) -> None:
         """Start from ``state`` with the holds of ``stance`` active (feet only when None)."""
@@ -266,7 +249,7 @@ class Controller:
         self.fallback_active = False
         self._qdd_held = None
         self.guard_off.clear()
-        self._update_ft(state)
+        self.ft.update(self.wb.data.oMf, state.ft)
         self.fsm.begin(self)
 
     def set_plan(self, plan: WholeBodyPlan) -> None:
@@ -338,7 +321,7 @@ class Controller:
         self.time = state.time
         self.grippers_out, self._queued_grippers = self._queued_grippers, []
         self.wb.update(state.q, state.v)
-        self._update_ft(state)
+        self.ft.update(self.wb.data.oMf, state.ft)
         self.fsm.step(self)
         self._advance_ramps()
         contacts = [self.contacts[limb] for limb in LIMBS if limb in self.contacts]
@@ -509,67 +492,22 @@ class Controller:
         v = state.v if a is None else state.v + horizon * a
         return RobotState(state.time, pin.integrate(self.model, state.q, dq), v, state.ft, state.stamp_ns)
 
-    # ------------------------------------------------------------------ F/T
-    def _ft_alpha(self) -> float:
-        """Gain of the first-order F/T filter per control period [-]."""
-        tau_f = self.params.guarded.filter_time_constant_s
-        return 1.0 if tau_f <= 0 else min(1.0, self.params.control_period_s / tau_f)
-
-    def _update_ft(self, state: RobotState) -> None:
-        g = self.params.guarded
-        alpha = self._ft_alpha()
-        beta = min(1.0, self.params.control_period_s / g.noise_time_constant_s)
-        oMf, ft, filtered = self.wb.data.oMf, state.ft, self._ft_filtered
-        for limb, sensor, fid in self._ft_limbs:
-            wrench = ft.get(sensor)
-            if wrench is None:
-                continue
-            force_world = oMf[fid].rotation @ np.asarray(wrench[:3], float)
-            # the noise: white noise of variance s^2 per component gives tick-to-tick differences
-            # of variance 2 s^2; each sample's share is capped (16 x the estimate + 1 N^2) so that
-            # a contact change or an impact does not pass for noise
-            raw_prev = self._ft_raw.get(limb)
-            self._ft_raw[limb] = force_world.copy()
-            if raw_prev is not None:
-                d = force_world - raw_prev
-                var = self._ft_noise_var.get(limb, 0.0)
-                sample = min(float(d @ d) / 6.0, 16.0 * var + 1.0)
-                self._ft_noise_var[limb] = var + beta * (sample - var)
-            previous = filtered.get(limb)
-            if previous is not None:
-                force_world -= previous
-                force_world *= alpha
-                force_world += previous  # previous + alpha (force - previous)
-            filtered[limb] = force_world
-
+    # ------------------------------------------------------------------ F/T (FtMonitor)
     def ft_force(self, limb: str) -> np.ndarray:
         """Filtered F/T force of the limb's sensor in world axes [N]."""
-        return self._ft_filtered.get(limb, np.zeros(3)).copy()
+        return self.ft.force(limb)
 
     def tare_ft(self, limb: str) -> None:
-        self._ft_tare[limb] = self.ft_force(limb)
-
-    def ft_noise_std(self, limb: str) -> float:
-        """Standard deviation [N] of the filtered F/T force noise of the limb's sensor along one
-        axis, estimated online (white noise through the first-order filter: s sqrt(a / (2 - a)))."""
-        alpha = self._ft_alpha()
-        return math.sqrt(self._ft_noise_var.get(limb, 0.0) * alpha / (2.0 - alpha))
+        self.ft.tare(limb)
 
     def contact_threshold(self, limb: str) -> float:
-        """[N] the F/T force change that means contact: ``guarded.force_threshold``, or
-        ``guarded.noise_sigmas`` standard deviations of the sensor's filtered noise when larger."""
-        g = self.params.guarded
-        return max(g.force_threshold, g.noise_sigmas * self.ft_noise_std(limb))
+        """[N] the F/T force change that means contact (FtMonitor.threshold)."""
+        return self.ft.threshold(limb)
 
     def ft_force_change(self, limb: str) -> float:
-        """Contact force [N] the limb's F/T has seen since the tare: the change of the filtered
-        force against the approach direction (an obstacle pushes the limb back), or its norm when
-        no approach direction is known."""
-        change = self.ft_force(limb) - self._ft_tare.get(limb, self.ft_force(limb))
-        direction = self._approach.get(limb)
-        if direction is None:
-            return float(np.linalg.norm(change))
-        return float(-change @ direction)
+        """Contact force [N] the limb's F/T has seen since the tare, against its approach
+        direction when one is known (FtMonitor.change)."""
+        return self.ft.change(limb, self._approach.get(limb))
 
     # ------------------------------------------------------------------ contacts (owned here)
     def has_contact(self, limb: str) -> bool:

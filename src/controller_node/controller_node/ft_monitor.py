@@ -1,0 +1,112 @@
+"""The limbs' force/torque sensors as the FSM's guarded moves read them.
+
+One :class:`FtMonitor` per controller. Each tick :meth:`FtMonitor.update` takes the measured
+wrenches (sensor axes) and the model's frame placements, and keeps per limb:
+
+- the sensor force in world axes through a first-order filter (``guarded.filter_time_constant_s``);
+- the force at the last tare (:meth:`tare`, taken when an approach begins), so that a guarded move
+  reads the force change the contact made, not the limb's own weight or the sensor's bias;
+- an online estimate of the sensor's white noise from the raw force's tick-to-tick differences
+  (``guarded.noise_time_constant_s``), from which the contact threshold rises above
+  ``guarded.force_threshold`` on a noisy sensor (``guarded.noise_sigmas``).
+
+No ROS, no simulator: the controller (controller.py) owns one and answers the FSM's questions
+(Context.tare_ft, ft_force_change, contact_threshold) through it.
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping, Sequence
+
+import numpy as np
+import pinocchio as pin
+
+
+def ft_sensor_frames(model: pin.Model, sensor_joints: Mapping[str, str]) -> dict[str, int]:
+    """sensor -> frame id of the sensor joint's child link (the frame its wrench is given in)."""
+    out = {}
+    for sensor, joint in sensor_joints.items():
+        jid = model.getJointId(joint)
+        for fid, frame in enumerate(model.frames):
+            if frame.parentJoint == jid and frame.type == pin.FrameType.BODY:
+                out[sensor] = fid
+                break
+    return out
+
+
+class FtMonitor:
+    def __init__(self, frames: Mapping[str, int], limb_sensors: Sequence[tuple[str, str]], guarded,
+                 control_period_s: float):
+        """``frames``: sensor -> frame id (:func:`ft_sensor_frames`); ``limb_sensors``: (limb,
+        sensor) pairs, those whose sensor has no frame are left out; ``guarded``: the controller's
+        GuardedParams."""
+        self.frames = dict(frames)
+        self.limbs = [(limb, sensor, self.frames[sensor]) for limb, sensor in limb_sensors if sensor in self.frames]
+        self.guarded = guarded
+        self.period = control_period_s
+        self._filtered: dict[str, np.ndarray] = {}  # limb -> filtered force, world axes [N]
+        self._tare: dict[str, np.ndarray] = {}  # limb -> filtered force at the last tare [N]
+        self._raw: dict[str, np.ndarray] = {}  # limb -> last raw force, world axes [N]
+        self._noise_var: dict[str, float] = {}  # limb -> raw noise variance per component [N^2]
+
+    def _alpha(self) -> float:
+        """Gain of the first-order filter per control period [-]."""
+        tau = self.guarded.filter_time_constant_s
+        return 1.0 if tau <= 0 else min(1.0, self.period / tau)
+
+    def update(self, oMf, ft: Mapping[str, Sequence[float]]) -> None:
+        """One tick: ``ft`` sensor -> wrench (force first, sensor axes), ``oMf`` the model data's
+        frame placements of this tick."""
+        alpha = self._alpha()
+        beta = min(1.0, self.period / self.guarded.noise_time_constant_s)
+        filtered = self._filtered
+        for limb, sensor, fid in self.limbs:
+            wrench = ft.get(sensor)
+            if wrench is None:
+                continue
+            force = oMf[fid].rotation @ np.asarray(wrench[:3], float)
+            # white noise of variance s^2 per component gives tick-to-tick differences of variance
+            # 2 s^2; each sample's share is capped (16 x the estimate + 1 N^2) so that a contact
+            # change or an impact does not pass for noise
+            previous_raw = self._raw.get(limb)
+            self._raw[limb] = force.copy()
+            if previous_raw is not None:
+                d = force - previous_raw
+                var = self._noise_var.get(limb, 0.0)
+                sample = min(float(d @ d) / 6.0, 16.0 * var + 1.0)
+                self._noise_var[limb] = var + beta * (sample - var)
+            previous = filtered.get(limb)
+            if previous is not None:
+                force -= previous
+                force *= alpha
+                force += previous  # previous + alpha (force - previous)
+            filtered[limb] = force
+
+    def force(self, limb: str) -> np.ndarray:
+        """Filtered force of the limb's sensor in world axes [N] (zeros before any reading)."""
+        return self._filtered.get(limb, np.zeros(3)).copy()
+
+    def tare(self, limb: str) -> None:
+        """Forces are read against this tick's from now on (:meth:`change`)."""
+        self._tare[limb] = self.force(limb)
+
+    def noise_std(self, limb: str) -> float:
+        """Standard deviation [N] of the filtered force noise along one axis, estimated online
+        (white noise through the first-order filter: s sqrt(a / (2 - a)))."""
+        alpha = self._alpha()
+        return math.sqrt(self._noise_var.get(limb, 0.0) * alpha / (2.0 - alpha))
+
+    def threshold(self, limb: str) -> float:
+        """[N] the force change that means contact: ``guarded.force_threshold``, or
+        ``guarded.noise_sigmas`` standard deviations of the filtered noise when larger."""
+        g = self.guarded
+        return max(g.force_threshold, g.noise_sigmas * self.noise_std(limb))
+
+    def change(self, limb: str, approach: np.ndarray | None = None) -> float:
+        """Contact force [N] seen since the tare: the filtered force's change against the unit
+        ``approach`` direction (an obstacle pushes the limb back), or its norm without one."""
+        now = self.force(limb)
+        change = now - self._tare.get(limb, now)
+        if approach is None:
+            return float(np.linalg.norm(change))
+        return float(-change @ approach)
