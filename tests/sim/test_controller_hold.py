@@ -42,7 +42,7 @@ def test_hold_mid_transition_keeps_the_contacts_and_nothing_falls(backend, limb,
     grasps = dict(runner.sim_state.grasps)
     assert c.hold_plan() == hold_in
     assert c.fsm.state == "hold" and c.plan is None and set(c.contacts) == contacts
-    assert not c.ramps or all(r.kind == "engage" for r in c.ramps.values())
+    assert not c.contact_set.ramps or all(r.kind == "engage" for r in c.contact_set.ramps.values())
     z0 = float(runner.sim_state.base.q[2])
     seen = []
     runner.on_tick.append(lambda sim, out: seen.append((out.status.fsm_state, out.status.active_contacts)))

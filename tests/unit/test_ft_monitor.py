@@ -60,3 +60,27 @@ def test_sensor_frames_are_the_child_links_of_the_sensor_joints():
         frame = robot.model.frames[fid]
         assert frame.type == pin.FrameType.BODY
         assert robot.model.names[frame.parentJoint] == robot.config.ft_sensors[sensor]
+
+
+def test_a_push_too_small_for_the_noisy_fast_threshold_confirms_a_stall_on_the_slow_filter():
+    """An ankle F/T with 2 % noise (20 N sigma): the fast threshold (5 sigma of the 10 ms filter,
+    ~58 N) is more than a creeping foot can push; a 25 N push is confirmed on the 200 ms filter
+    (4 sigma of the change from the tare ~13 N), and noise alone does not confirm one."""
+    ft, oMf, g = monitor()
+    rng = np.random.default_rng(1)
+    sigma = 20.0
+    for _ in range(2000):
+        ft.update(oMf, {"wrist": np.concatenate([rng.normal(0.0, sigma, 3), np.zeros(3)])})
+    ft.tare("hand")
+    approach = np.array([0.0, 0.0, -1.0])
+    quiet = []
+    for _ in range(1000):  # 5 s of noise only
+        ft.update(oMf, {"wrist": np.concatenate([rng.normal(0.0, sigma, 3), np.zeros(3)])})
+        quiet.append(ft.confirms_stall("hand", approach))
+    assert not any(quiet)
+    assert ft.threshold("hand") > 50.0
+    for _ in range(120):  # 0.6 s pushing 25 N
+        ft.update(oMf, {"wrist": np.concatenate([[0.0, 0.0, 25.0] + rng.normal(0.0, sigma, 3), np.zeros(3)])})
+    assert ft.change("hand", approach) < ft.threshold("hand")
+    assert ft.confirms_stall("hand", approach)
+    assert ft.change("hand", approach, slow=True) == pytest.approx(25.0, abs=6 * ft.noise_std("hand", slow=True))

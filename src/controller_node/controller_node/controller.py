@@ -32,6 +32,7 @@ from climb_core.ros_env import project_root
 
 from .compliance import ComplianceLaw, MotorArrays, PwmGainArrays
 from .constraints import ActiveContact, CollisionAvoidance, contact_from_hold
+from .contact_set import ContactSet
 from .estimator import RobotState
 from .fsm import Fsm, FsmTable, limb_kind, load_fsm_table
 from .ft_monitor import FtMonitor, ft_sensor_frames
@@ -102,17 +103,6 @@ class PlanRefused(RuntimeError):
 PLAN_READY_STATES = ("idle", "hold", "replan_needed")
 
 
-@dataclass
-class _Ramp:
-    kind: str  # release | engage
-    start: float  # [s]
-    duration: float  # [s]
-    cap0: Any = None  # release: load at the start (N or per-component wrench)
-
-    def fraction(self, t: float) -> float:
-        return 1.0 if self.duration <= 0 else min(max((t - self.start) / self.duration, 0.0), 1.0)
-
-
 def _limb_links(robot, limb_frame: str) -> set[str]:
     """Links (collision geometry parents) in the subtree of the limb frame's parent joint."""
     model = robot.model
@@ -164,10 +154,7 @@ class Controller:
                             name=f"contact_body:{name}") for name in self.limbs}
         self.active_tasks: list[Task] = [self.com_task, self.posture_task, self.base_task]
         # contacts (owned here)
-        self.contacts: dict[str, ActiveContact] = {}
-        self.holds: dict[str, Hold] = {}
-        self.ramps: dict[str, _Ramp] = {}
-        self.last_loads: dict[str, np.ndarray] = {}
+        self.contact_set = ContactSet()
         # plan
         self.plan: WholeBodyPlan | None = None
         self.plan_pending = False
@@ -230,9 +217,7 @@ class Controller:
         self.state = state
         self.time = state.time
         self.wb.update(state.q, state.v)
-        self.contacts.clear()
-        self.holds.clear()
-        self.ramps.clear()
+        self.contact_set.clear()
         if stance is not None:
             for hold in stance.holds:
                 self._activate(hold.limb, hold, engage=False)
@@ -285,16 +270,8 @@ class Controller:
         self.plan = None
         self.plan_pending = False
         self.fsm.fire(self, "hold")  # the state left tears down (stiffness, a foot's unload, ...)
-        for name, contact in contacts.items():  # the contact set stays what it was
-            if name not in self.contacts:
-                self.contacts[name] = contact
-                self.holds[name] = holds[name]
-        for name, ramp in list(self.ramps.items()):
-            if ramp.kind == "release":
-                del self.ramps[name]
-                contact = self.contacts.get(name)
-                if contact is not None:
-                    contact.scale, contact.ramp_cap = 1.0, None
+        self.contact_set.restore(contacts, holds)  # the contact set stays what it was
+        self.contact_set.cancel(("release",))
         if before == "open_gripper" and limb in HANDS and limb in self.contacts:
             self._queued_grippers.append(GripperRequest(limb, "close", 0.0, self.time))
         self.transition = None
@@ -323,8 +300,8 @@ class Controller:
         self.wb.update(state.q, state.v)
         self.ft.update(self.wb.data.oMf, state.ft)
         self.fsm.step(self)
-        self._advance_ramps()
-        contacts = [self.contacts[limb] for limb in LIMBS if limb in self.contacts]
+        self.contact_set.advance(self.time)
+        contacts = self.contact_set.ordered()
         disabled = self._disabled_pairs()
         qp_status, solve_ms = QP_NOT_RUN, 0.0
         result = None
@@ -346,7 +323,7 @@ class Controller:
                 self.fsm.fire(self, "qp_failure")
             if not in_grace or self.fsm.state == "failure":
                 # one retry with the hold tasks (and contact set) the failure state just set
-                contacts = [self.contacts[limb] for limb in LIMBS if limb in self.contacts]
+                contacts = self.contact_set.ordered()
                 try:
                     result = self.wb.solve(contacts, self.active_tasks, self._disabled_pairs())
                 except QpFailure:
@@ -370,7 +347,7 @@ class Controller:
             self._tau_ff = tau.copy()
             self.last_result = result
             for limb, c in result.contacts.items():
-                self.last_loads[limb] = c.wrench_in_world
+                self.contact_set.last_loads[limb] = c.wrench_in_world
         elif result is not None:
             tau = result.tau
         else:
@@ -388,7 +365,7 @@ class Controller:
         tick_ms = (time.perf_counter() - t0) * 1e3
         status = TickStatus(
             state.time, self.fsm.state, self.params.mode, max(self.transition_index, 0),
-            tuple(limb for limb in LIMBS if limb in self.contacts),
+            self.contact_set.limbs(),
             tuple(t.name for t in self.active_tasks), tuple(t.last_error for t in self.active_tasks),
             qp_status, solve_ms, tick_ms, self.qp_failures, fallback, self.replan_needed)
         wrenches = {limb: c.wrench_in_world for limb, c in result.contacts.items()} if result is not None else {}
@@ -445,19 +422,16 @@ class Controller:
         self.active_tasks = [self.com_task, self.posture_task, self.base_task]
         self.hold_here()
         # a contact still engaging carries little load and is the likely culprit: drop it
-        for limb, ramp in list(self.ramps.items()):
-            if ramp.kind == "engage":
-                self.remove_contact(limb)
-        self.ramps.clear()
-        for contact in self.contacts.values():
-            contact.scale, contact.ramp_cap = 1.0, None
+        for limb in [limb for limb, ramp in self.contact_set.ramps.items() if ramp.kind == "engage"]:
+            self.remove_contact(limb)
+        self.contact_set.cancel(("release", "engage"))
 
     def _static_torques(self) -> np.ndarray:
         """Joint torques [N m] holding the current configuration still on the active contacts:
         the least-norm contact wrenches balancing gravity on the base rows (no friction or torque
         limits: a feed-forward for the fallback PD, not a QP)."""
         g = pin.computeGeneralizedGravity(self.model, self.ref_data, self.state.q)
-        contacts = [self.contacts[limb] for limb in LIMBS if limb in self.contacts]
+        contacts = self.contact_set.ordered()
         if not contacts:
             return g[6:].copy()
         J = np.vstack([self.wb._contact_kinematics(c)[0] for c in contacts])  # (6k, nv)
@@ -509,11 +483,37 @@ class Controller:
         direction when one is known (FtMonitor.change)."""
         return self.ft.change(limb, self._approach.get(limb))
 
-    # ------------------------------------------------------------------ contacts (owned here)
+    def search_stalled(self, limb: str) -> bool:
+        """Search: the limb lags its creeping target by ``guarded.stall_lag`` along the approach
+        (something holds it back) and the slow-filtered F/T confirms a push (FtMonitor)."""
+        g = self.params.guarded
+        if g.stall_lag <= 0 or limb != self.moving_limb or self._creep_dir is None or not np.any(self._creep_dir):
+            return False
+        task = self.contact_body_tasks[limb]
+        lag = float(self._creep_dir @ (task.T_world_target.translation - task.current(self.wb.view).translation))
+        return lag > g.stall_lag and self.ft.confirms_stall(limb, self._approach.get(limb))
+
+    # ------------------------------------------------------------------ contacts (ContactSet)
+    @property
+    def contacts(self) -> dict[str, ActiveContact]:
+        """limb -> the QP's active contact (the ContactSet's, in place)."""
+        return self.contact_set.active
+
+    @property
+    def holds(self) -> dict[str, Hold]:
+        """limb -> the hold each active contact was made from."""
+        return self.contact_set.holds
+
     def has_contact(self, limb: str) -> bool:
-        return limb in self.contacts
+        return self.contact_set.has(limb)
 
     def _activate(self, limb: str, hold: Hold, engage: bool) -> None:
+        engage_s = self.params.contacts.engage_ramp_s if engage else 0.0
+        self.contact_set.put(limb, hold, self._contact_of(limb, hold), self.time, engage_s)
+        self.emit("contact_added", limb=limb, surface=hold.env_surface)
+
+    def _contact_of(self, limb: str, hold: Hold) -> ActiveContact:
+        """The QP's contact for ``hold`` at the limb's current pose."""
         c = self.params.contacts
         fid = self.limb_frame_ids[limb]
         torque_limit = c.grasp_torque_limit
@@ -527,34 +527,17 @@ class Controller:
                                     torque_limit=torque_limit, min_normal_force=c.min_normal_force,
                                     friction_margin=c.friction_margin,
                                     generators_per_point=c.generators_per_point)
-        if engage and c.engage_ramp_s > 0:
-            contact.scale = 0.0
-            self.ramps[limb] = _Ramp("engage", self.time, c.engage_ramp_s)
-        self.contacts[limb] = contact
-        self.holds[limb] = hold
-        self.emit("contact_added", limb=limb, surface=hold.env_surface)
+        return contact
 
     def begin_release(self, limb: str) -> None:
-        load = self.last_loads.get(limb)
-        contact = self.contacts.get(limb)
-        if contact is None:
-            return
-        if contact.bilateral:
-            # (force norm, largest moment component) carried now, plus a margin
-            cap0 = (np.array([np.linalg.norm(load[:3]) + 1.0, np.max(np.abs(load[3:])) + 0.5])
-                    if load is not None else np.array([contact.force_limit, contact.torque_limit]))
-        else:
-            cap0 = float(np.dot(load[:3], self._mean_normal(contact))) + 1.0 if load is not None else contact.force_limit
-        self.ramps[limb] = _Ramp("release", self.time, self.params.contacts.release_ramp_s, cap0)
-        self.emit("release_started", limb=limb)
+        if self.contact_set.begin_release(limb, self.time, self.params.contacts.release_ramp_s):
+            self.emit("release_started", limb=limb)
 
     def release_done(self, limb: str) -> bool:
-        ramp = self.ramps.get(limb)
-        return ramp is None or (ramp.kind == "release" and ramp.fraction(self.time) >= 1.0)
+        return self.contact_set.release_done(limb, self.time)
 
     def remove_contact(self, limb: str) -> None:
-        if self.contacts.pop(limb, None) is not None:
-            self.ramps.pop(limb, None)
+        if self.contact_set.remove(limb):
             self.emit("contact_removed", limb=limb)
 
     def add_contact(self, limb: str) -> None:
@@ -591,31 +574,7 @@ class Controller:
         return p is not None and p[0] == limb and abs(p[3]) > self.params.guarded.replan_offset and not last
 
     def contact_ready(self, limb: str) -> bool:
-        ramp = self.ramps.get(limb)
-        return ramp is None or ramp.fraction(self.time) >= 1.0
-
-    def _mean_normal(self, contact: ActiveContact) -> np.ndarray:
-        if len(contact.normals_in_world) == 0:
-            return np.array([0.0, 0.0, 1.0])
-        n = contact.normals_in_world.mean(axis=0)
-        return n / np.linalg.norm(n)
-
-    def _advance_ramps(self) -> None:
-        for limb, ramp in list(self.ramps.items()):
-            contact = self.contacts.get(limb)
-            if contact is None:
-                del self.ramps[limb]
-                continue
-            f = ramp.fraction(self.time)
-            if ramp.kind == "engage":
-                contact.scale = f
-                contact.ramp_cap = None
-                if f >= 1.0:
-                    del self.ramps[limb]
-            else:
-                remaining = 1.0 - f
-                contact.scale = remaining if not contact.bilateral else 1.0
-                contact.ramp_cap = ramp.cap0 * remaining
+        return self.contact_set.ready(limb, self.time)
 
     def _hold_at_actual_pose(self, limb: str) -> Hold:
         planned = self.transition.target_stance.hold(limb) if self.transition is not None else None

@@ -158,6 +158,7 @@ class Context(Protocol):
     def tare_ft(self, limb: str) -> None: ...
     def ft_force_change(self, limb: str) -> float: ...
     def contact_threshold(self, limb: str) -> float: ...
+    def search_stalled(self, limb: str) -> bool: ...
     def freeze_limb(self) -> None: ...
     def creep(self, distance: float) -> None: ...
     def set_guard(self, limb: str, surface: str, on: bool) -> None: ...
@@ -342,10 +343,12 @@ class SearchState(State):
 
     def run(self, ctx: Context) -> str | None:
         g = ctx.params.guarded
-        if ctx.ft_force_change(ctx.moving_limb) > ctx.contact_threshold(ctx.moving_limb):
+        limb = ctx.moving_limb
+        by_force = ctx.ft_force_change(limb) > ctx.contact_threshold(limb)
+        if by_force or ctx.search_stalled(limb):
             ctx.freeze_limb()
-            ctx.emit("contact_detected", limb=ctx.moving_limb, early=False, state=self.name,
-                     extra_travel=self.travelled)
+            ctx.emit("contact_detected", limb=limb, early=False, state=self.name,
+                     extra_travel=self.travelled, by="force" if by_force else "stall")
             return "contact"
         if self.travelled >= g.search_distance:
             ctx.freeze_limb()

@@ -6,6 +6,9 @@ wrenches (sensor axes) and the model's frame placements, and keeps per limb:
 - the sensor force in world axes through a first-order filter (``guarded.filter_time_constant_s``);
 - the force at the last tare (:meth:`tare`, taken when an approach begins), so that a guarded move
   reads the force change the contact made, not the limb's own weight or the sensor's bias;
+- a second, slower filter of the same force (``guarded.confirm_time_constant_s``) that confirms
+  a stalled search (a limb blocked short of its creeping target) against a noise floor lower than
+  the fast threshold's;
 - an online estimate of the sensor's white noise from the raw force's tick-to-tick differences
   (``guarded.noise_time_constant_s``), from which the contact threshold rises above
   ``guarded.force_threshold`` on a noisy sensor (``guarded.noise_sigmas``).
@@ -46,20 +49,22 @@ class FtMonitor:
         self.period = control_period_s
         self._filtered: dict[str, np.ndarray] = {}  # limb -> filtered force, world axes [N]
         self._tare: dict[str, np.ndarray] = {}  # limb -> filtered force at the last tare [N]
+        self._slow: dict[str, np.ndarray] = {}  # limb -> slow-filtered force, world axes [N]
+        self._slow_tare: dict[str, np.ndarray] = {}
         self._raw: dict[str, np.ndarray] = {}  # limb -> last raw force, world axes [N]
         self._noise_var: dict[str, float] = {}  # limb -> raw noise variance per component [N^2]
 
-    def _alpha(self) -> float:
-        """Gain of the first-order filter per control period [-]."""
-        tau = self.guarded.filter_time_constant_s
+    def _alpha(self, slow: bool = False) -> float:
+        """Gain of the first-order filter (or the slow one) per control period [-]."""
+        tau = self.guarded.confirm_time_constant_s if slow else self.guarded.filter_time_constant_s
         return 1.0 if tau <= 0 else min(1.0, self.period / tau)
 
     def update(self, oMf, ft: Mapping[str, Sequence[float]]) -> None:
         """One tick: ``ft`` sensor -> wrench (force first, sensor axes), ``oMf`` the model data's
         frame placements of this tick."""
-        alpha = self._alpha()
+        alpha, alpha_slow = self._alpha(), self._alpha(slow=True)
         beta = min(1.0, self.period / self.guarded.noise_time_constant_s)
-        filtered = self._filtered
+        filtered, slow = self._filtered, self._slow
         for limb, sensor, fid in self.limbs:
             wrench = ft.get(sensor)
             if wrench is None:
@@ -75,6 +80,8 @@ class FtMonitor:
                 var = self._noise_var.get(limb, 0.0)
                 sample = min(float(d @ d) / 6.0, 16.0 * var + 1.0)
                 self._noise_var[limb] = var + beta * (sample - var)
+            previous_slow = slow.get(limb)
+            slow[limb] = force.copy() if previous_slow is None else previous_slow + alpha_slow * (force - previous_slow)
             previous = filtered.get(limb)
             if previous is not None:
                 force -= previous
@@ -89,11 +96,12 @@ class FtMonitor:
     def tare(self, limb: str) -> None:
         """Forces are read against this tick's from now on (:meth:`change`)."""
         self._tare[limb] = self.force(limb)
+        self._slow_tare[limb] = self._slow.get(limb, np.zeros(3)).copy()
 
-    def noise_std(self, limb: str) -> float:
-        """Standard deviation [N] of the filtered force noise along one axis, estimated online
-        (white noise through the first-order filter: s sqrt(a / (2 - a)))."""
-        alpha = self._alpha()
+    def noise_std(self, limb: str, slow: bool = False) -> float:
+        """Standard deviation [N] of the filtered (or slow-filtered) force noise along one axis,
+        estimated online (white noise through a first-order filter of gain a: s sqrt(a / (2 - a)))."""
+        alpha = self._alpha(slow)
         return math.sqrt(self._noise_var.get(limb, 0.0) * alpha / (2.0 - alpha))
 
     def threshold(self, limb: str) -> float:
@@ -102,11 +110,20 @@ class FtMonitor:
         g = self.guarded
         return max(g.force_threshold, g.noise_sigmas * self.noise_std(limb))
 
-    def change(self, limb: str, approach: np.ndarray | None = None) -> float:
-        """Contact force [N] seen since the tare: the filtered force's change against the unit
-        ``approach`` direction (an obstacle pushes the limb back), or its norm without one."""
-        now = self.force(limb)
-        change = now - self._tare.get(limb, now)
+    def confirms_stall(self, limb: str, approach: np.ndarray | None = None) -> bool:
+        """The slow-filtered force change exceeds ``guarded.confirm_sigmas`` standard deviations
+        of its noise (the tare's and the present's: sqrt(2) x the filtered noise) and
+        ``guarded.force_threshold``: a limb held back short of its target is pressing on something."""
+        g = self.guarded
+        floor = max(g.force_threshold, g.confirm_sigmas * math.sqrt(2.0) * self.noise_std(limb, slow=True))
+        return self.change(limb, approach, slow=True) > floor
+
+    def change(self, limb: str, approach: np.ndarray | None = None, slow: bool = False) -> float:
+        """Contact force [N] seen since the tare: the filtered (or slow-filtered) force's change
+        against the unit ``approach`` direction (an obstacle pushes the limb back), or its norm
+        without one."""
+        now = self._slow.get(limb, np.zeros(3)) if slow else self.force(limb)
+        change = now - (self._slow_tare if slow else self._tare).get(limb, now)
         if approach is None:
             return float(np.linalg.norm(change))
         return float(-change @ approach)

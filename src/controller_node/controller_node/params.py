@@ -157,6 +157,16 @@ class GuardedParams:
     noise_time_constant_s: float = param(1.0, unit="s", min=0.01,
                                          description="time constant of the online F/T noise estimate (from the "
                                                      "raw force's tick-to-tick differences)")
+    stall_lag: float = param(0.015, unit="m", min=0.0,
+                             description="search: the limb this far behind its creeping target along the "
+                                         "approach (blocked) is a contact once the slow-filtered force change "
+                                         "confirms it (confirm_sigmas); 0: off. A noisy F/T raises the fast "
+                                         "threshold beyond what a creeping limb can push")
+    confirm_time_constant_s: float = param(0.2, unit="s", min=0.0,
+                                           description="first-order filter of the F/T force that confirms a stall")
+    confirm_sigmas: float = param(4.0, unit="-", min=0.0,
+                                  description="a stall is a contact when the slow-filtered force change exceeds "
+                                              "this many standard deviations of its noise (and force_threshold)")
     approach_arm_fraction: float = param(0.0, unit="-", min=0.0, max=1.0,
                                          description="contact checks start this far into the last path segment "
                                                      "(the approach; the F/T is tared again there), plus settle_time_s")
