@@ -50,6 +50,8 @@ from .session import (MAX_FORCED_REPLANS, ClimbRequest, ClimbSession, ExecStatus
                       check_request, controller_overrides, ladder_name)
 
 NODE_NAME = "climb_coordinator"
+#: [s] wait for guide_path's subscription to plan/request before a request is published
+PLAN_REQUEST_MATCH_S = 10.0
 PLAN_STAGES = ("guide_path", "contact_search", "primitive_adaptation")
 #: climb/status phase while a stage works on the climb's plan request
 PLAN_PHASES = {"guide_path": "guide_path", "contact_search": "contact_search", "primitive_adaptation": "adaptation"}
@@ -862,6 +864,14 @@ def _make_node():
                 request["start"] = {"q": [float(x) for x in q], "stance": stance_to_dict(stance)}
             if surface_offsets:  # where execution found surfaces: every stage plans in that model
                 request["surface_offsets"] = {k: [float(x) for x in v] for k, v in surface_offsets.items()}
+            # plan/request is VOLATILE: a request published before guide_path's reader matched is
+            # lost (measured once in a fresh-clone run: no stage answered the cancel test's first
+            # climb). Wait, bounded, for the match on this side, and let it settle on the other.
+            match_by = time.monotonic() + PLAN_REQUEST_MATCH_S
+            if node.pub_plan_request.get_subscription_count() == 0:
+                while node.pub_plan_request.get_subscription_count() == 0 and time.monotonic() < match_by:
+                    time.sleep(0.05)
+                time.sleep(0.3)
             t0 = time.monotonic()
             safe_publish(node.pub_plan_request, String(data=json.dumps(request)))
             from planner_node.settings import load_settings
