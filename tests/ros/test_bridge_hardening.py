@@ -20,6 +20,32 @@ def stamp_s(msg) -> float:
     return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
 
+def damping_controller(client, ns: str) -> tuple[list[float], list]:
+    """The test process as a lock-step controller of the bridge in namespace ``ns``: every state is
+    answered with a DAMPING command stamped like it. Returns (state stamps [s], diagnostics seen)."""
+    import array as _array
+
+    from climb_msgs.msg import JointCommand
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import JointState
+
+    diags: list = []
+    stamps: list[float] = []
+    pub = client.node.create_publisher(JointCommand, f"{ns}/joint_command", client.qos("joint_command"))
+
+    def answer(msg) -> None:
+        stamps.append(stamp_s(msg))
+        cmd = JointCommand(names=list(msg.name), modes=_array.array("B", [JointCommand.DAMPING] * len(msg.name)),
+                           values=_array.array("d", [0.0] * len(msg.name)))
+        cmd.header.stamp = msg.header.stamp
+        pub.publish(cmd)
+
+    client.node.create_subscription(JointState, f"{ns}/joint_states", answer, client.qos("joint_states"))
+    client.node.create_subscription(DiagnosticArray, f"{ns}/diagnostics", lambda m: diags.extend(m.status),
+                                    client.qos("diagnostics"))
+    return stamps, diags
+
+
 @pytest.fixture(scope="module")
 def bridge():
     from sensor_msgs.msg import JointState
@@ -207,30 +233,12 @@ def test_failed_reset_in_lockstep_keeps_the_tick_going():
     """Row 7 in lock-step: a refused sim/reset neither rewinds the time nor leaves the bridge
     waiting for a command it never asked for ("controller lost"). The test process is the
     controller: it answers every state with a DAMPING command stamped like it."""
-    import array as _array
-
-    from climb_msgs.msg import JointCommand
     from climb_msgs.srv import SimReset
-    from diagnostic_msgs.msg import DiagnosticArray
-    from sensor_msgs.msg import JointState
 
     proc = NodeProcess.module("sim_bridge.node", "-r", "__ns:=/lockstep_reset", name="sim_bridge_lockstep")
     client = Client("bridge_lockstep_reset")
     try:
-        diags: list = []
-        stamps: list[float] = []
-        pub = client.node.create_publisher(JointCommand, "/lockstep_reset/joint_command", client.qos("joint_command"))
-
-        def answer(msg) -> None:
-            stamps.append(stamp_s(msg))
-            cmd = JointCommand(names=list(msg.name), modes=_array.array("B", [JointCommand.DAMPING] * len(msg.name)),
-                               values=_array.array("d", [0.0] * len(msg.name)))
-            cmd.header.stamp = msg.header.stamp
-            pub.publish(cmd)
-
-        client.node.create_subscription(JointState, "/lockstep_reset/joint_states", answer, client.qos("joint_states"))
-        client.node.create_subscription(DiagnosticArray, "/lockstep_reset/diagnostics",
-                                        lambda m: diags.extend(m.status), client.qos("diagnostics"))
+        stamps, diags = damping_controller(client, "/lockstep_reset")
         assert client.spin_until(lambda: len(stamps) > 40, START_TIMEOUT_S, [proc]), proc.tail()
         lost = lambda: [d.message for d in diags if "controller lost" in d.message]  # noqa: E731
         assert not lost()
@@ -255,12 +263,6 @@ def test_a_controller_that_joins_after_the_first_state_gets_it_again_and_the_loo
     command arrives the bridge publishes the awaited state again (lockstep.resend_s, doubling), so
     a controller that joins 2 s late still gets it, answers, and the ticks run with no controller
     reported lost (test_controller_node's CI failure: the observer missed state 0 and waited)."""
-    import array as _array
-
-    from climb_msgs.msg import JointCommand
-    from diagnostic_msgs.msg import DiagnosticArray
-    from sensor_msgs.msg import JointState
-
     proc = NodeProcess.module("sim_bridge.node", "-r", "__ns:=/late_join", "-p", "lockstep.startup_wait_s:=0.0",
                               "-p", "lockstep.command_timeout_s:=120.0", "-p", "lockstep.resend_s:=0.25",
                               name="sim_bridge_late_join")
@@ -269,20 +271,7 @@ def test_a_controller_that_joins_after_the_first_state_gets_it_again_and_the_loo
         assert client.spin_until(lambda: "starting the lock-step anyway" in proc.output(), START_TIMEOUT_S, [proc]), \
             proc.tail()
         client.spin(2.0)  # the state stamped 0 went out with nobody listening
-        diags: list = []
-        stamps: list[float] = []
-        pub = client.node.create_publisher(JointCommand, "/late_join/joint_command", client.qos("joint_command"))
-
-        def answer(msg) -> None:
-            stamps.append(stamp_s(msg))
-            cmd = JointCommand(names=list(msg.name), modes=_array.array("B", [JointCommand.DAMPING] * len(msg.name)),
-                               values=_array.array("d", [0.0] * len(msg.name)))
-            cmd.header.stamp = msg.header.stamp
-            pub.publish(cmd)
-
-        client.node.create_subscription(JointState, "/late_join/joint_states", answer, client.qos("joint_states"))
-        client.node.create_subscription(DiagnosticArray, "/late_join/diagnostics",
-                                        lambda m: diags.extend(m.status), client.qos("diagnostics"))
+        stamps, diags = damping_controller(client, "/late_join")
         assert client.spin_until(lambda: len(stamps) > 40, 60.0, [proc]), (stamps[:5], proc.tail())
         assert stamps[0] == 0.0  # the first state it saw is the one sent before it joined
         ticks = sorted({round(t / 0.005) for t in stamps})

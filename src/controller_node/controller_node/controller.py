@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from climb_core.contact import FEET, HANDS, LIMBS, Hold, Stance, Transition, WholeBodyPlan
+from climb_core.contact import FEET, HANDS, Hold, Stance, Transition, WholeBodyPlan
 from climb_core.ros_env import project_root
 
 from .compliance import ComplianceLaw, MotorArrays, PwmGainArrays
@@ -467,10 +467,6 @@ class Controller:
         return RobotState(state.time, pin.integrate(self.model, state.q, dq), v, state.ft, state.stamp_ns)
 
     # ------------------------------------------------------------------ F/T (FtMonitor)
-    def ft_force(self, limb: str) -> np.ndarray:
-        """Filtered F/T force of the limb's sensor in world axes [N]."""
-        return self.ft.force(limb)
-
     def tare_ft(self, limb: str) -> None:
         self.ft.tare(limb)
 
