@@ -26,7 +26,8 @@ def test_every_case_is_a_valid_scenario_the_simulator_alone_sees_perturbed():
         elif case.family.startswith("ball_"):
             (drop,) = p.drops
             assert drop.mass == case.value and drop.speed == 5.5 and drop.target_link == "torso"
-            assert drop.at_time == campaign.PHASE_TIMES[case.family[5:]]
+            assert (drop.at_transition, drop.at_time) == campaign.PHASE_TRANSITIONS[case.family[5:]]
+            assert drop.on_transition and drop.direction == pytest.approx(campaign.BALL_DIRECTION, abs=1e-3)
     with pytest.raises(ValueError, match="unknown family"):
         campaign.cases(["wind"])
 

@@ -90,8 +90,10 @@ class KinematicLoop:
     def ft(self) -> dict[str, np.ndarray]:
         c = self.c
         out = {s: np.zeros(6) for s in c.robot.config.ft_sensors}
-        if self.contact_plane is None or c.moving_limb != "right_hand":
-            return out
+        near = c.fsm.state in ("close_gripper", "load", "hold") or (c.fsm.state in ("transfer", "search")
+                                                                   and c.in_approach())
+        if self.contact_plane is None or c.moving_limb != "right_hand" or not near:
+            return out  # (the plane is infinite: only the approach meets it, not the hand lifting off)
         point, direction = self.contact_plane
         data = c.model.createData()
         pin.framesForwardKinematics(c.model, data, self.q)
@@ -292,3 +294,70 @@ def test_a_hand_freed_for_good_leaves_its_rung_without_a_guard_or_a_search(ladde
     assert set(controller.contacts) == {"left_foot", "right_foot", "left_hand"}
     assert not controller.events_of("contact_detected") and not controller.events_of("search_started")
     assert controller.transition_index >= 0 and out.status.fsm_state == "hold"
+
+
+def _run_until_state(loop: KinematicLoop, state: str, ticks: int):
+    for _ in range(ticks):
+        out = loop.step()
+        if out.status.fsm_state == state:
+            return out
+    raise AssertionError(f"no {state!r} within {ticks} ticks (in {loop.c.fsm.state!r})")
+
+
+def test_an_impact_mid_transfer_braces_then_the_transfer_resumes_and_completes(ladder):
+    """An impact (injected as the monitor would report it) while the right hand travels: the
+    brace holds the three contacts left where they are; nothing moved, so the interrupted
+    transition starts again from where the robot is and ends on rung 6 as planned."""
+    from controller_node.impact import Impact
+
+    robot, env, stance, q, transition = ladder
+    controller = Controller(robot, load_controller_params(**{"collision.enabled": False}), env)
+    loop = KinematicLoop(controller, q)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    controller.set_plan(plan_of(robot, env, stance, [transition]))
+    T_target = robot.T_world_surface("right_hand", transition.path[-1])
+    loop.contact_plane = (T_target[:3, 3] - 0.015 * T_target[:3, 2], T_target[:3, 2])  # found 1.5 cm early
+    _run_until_state(loop, "transfer", 600)
+    for _ in range(40):
+        loop.step()
+    controller._on_impact(Impact(controller.time, "ft:left_foot", 900.0, 400.0))
+    assert controller.fsm.state == "brace"
+    states, out = _run_until_settled(loop, 2400)
+    assert states == ["brace", "transfer", "close_gripper", "load", "hold"], states
+    (started,) = controller.events_of("brace_started")
+    assert started.values["interrupted"] == "transfer"
+    assert started.values["contacts"] == ["left_foot", "left_hand", "right_foot"]
+    (ended,) = controller.events_of("brace_ended")
+    assert ended.values["duration"] >= controller.params.impact.brace_time_s - 1e-9
+    assert max(ended.values["displacement"].values()) < 0.005  # the kinematic robot held still
+    assert controller.events_of("brace_resumed") and not controller.events_of("contact_lost")
+    assert [e.values["index"] for e in controller.events_of("transition_started")] == [0, 0]
+    assert set(controller.contacts) == {"left_foot", "right_foot", "left_hand", "right_hand"}
+    assert controller.holds["right_hand"].env_surface == "rung_6"
+    assert controller.posture_task.stiffness == controller.params.tasks.posture.stiffness  # restored
+
+
+def test_a_contact_moved_during_the_brace_is_lost_and_the_fsm_asks_for_a_replan(ladder):
+    """The same brace, but the left foot's contact point is found 5 cm from where it was at the
+    impact (knocked off its rung): it leaves the contact set and the FSM holds in replan_needed
+    (reason contact_lost)."""
+    from controller_node.impact import Impact
+
+    robot, env, stance, q, transition = ladder
+    controller = Controller(robot, load_controller_params(**{"collision.enabled": False}), env)
+    loop = KinematicLoop(controller, q)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    controller.set_plan(plan_of(robot, env, stance, [transition]))
+    _run_until_state(loop, "unload", 200)
+    controller._on_impact(Impact(controller.time, "joint:3", 20.0, 12.0))
+    assert controller.fsm.state == "brace"
+    controller.brace.anchors["left_foot"] = controller.brace.anchors["left_foot"] + np.array([0.0, 0.0, 0.05])
+    states, out = _run_until_settled(loop, 1000)
+    assert states[-1] == "replan_needed" and controller.replan_reason == "contact_lost"
+    (lost,) = controller.events_of("contact_lost")
+    assert lost.values["limb"] == "left_foot" and lost.values["moved"] > 0.045
+    assert "left_foot" not in controller.contacts
+    # the release under way when the blow came was cancelled: the right hand holds at full share
+    assert "right_hand" in controller.contacts and controller.contacts["right_hand"].scale == 1.0
+    (event,) = controller.events_of("replan_needed")
+    assert event.values["reason"] == "contact_lost"

@@ -91,6 +91,12 @@ RULES = [
     ("drop_radius_neg", "perturbation.drops[0].radius", -0.1, "perturbation.drops[0].radius", "> 0"),
     ("drop_speed_0", "perturbation.drops[0].speed", 0.0, "perturbation.drops[0].speed", "> 0"),
     ("drop_time_neg", "perturbation.drops[0].at_time", -1.0, "perturbation.drops[0].at_time", ">= 0"),
+    ("drop_transition_neg", "perturbation.drops[0].at_transition", -1, "perturbation.drops[0].at_transition", ">= 0"),
+    ("drop_transition_float", "perturbation.drops[0].at_transition", 2.5, "perturbation.drops[0].at_transition",
+     "integer"),
+    ("drop_direction_zero", "perturbation.drops[0].direction", [0.0, 0.0, 0.0], "perturbation.drops[0].direction",
+     "non-zero"),
+    ("drop_direction_short", "perturbation.drops[0].direction", [1.0, 0.0], "perturbation.drops[0].direction", "3"),
     # n_rungs >= 2, integer
     ("n_rungs_1", "ladder.n_rungs", 1, "ladder.n_rungs", "[2, "),
     ("n_rungs_float", "ladder.n_rungs", 2.5, "ladder.n_rungs", "integer"),
@@ -243,6 +249,11 @@ def test_type_dependent_defaults_and_nested_defaults():
     assert (rect.thickness, rect.half_depth, rect.half_height) == (0.04, 0.085, 0.02)
     drop = parse_scenario({"ladder": {}, "perturbation": {"drops": [{}]}}).perturbation.drops[0]
     assert (drop.mass, drop.radius, drop.speed, drop.at_time, drop.target_link) == (10.0, 0.12, 5.5, 0.0, "torso")
+    # extension: no direction = the simulator's (down), no at_transition = at at_time
+    assert (drop.direction, drop.at_transition, drop.on_transition) == ((), 0, False)
+    aimed = parse_scenario({"ladder": {}, "perturbation": {"drops": [{"direction": [3.0, 0.0, -4.0],
+                                                                       "at_transition": 10}]}}).perturbation.drops[0]
+    assert aimed.direction == pytest.approx((0.6, 0.0, -0.8)) and aimed.on_transition
     # null means "absent" (YAML `key:` with nothing after it)
     nulls = parse_scenario(yaml.safe_load("ladder:\n  friction:\n  rails:\n  top_platform:\nperturbation:\n"))
     assert nulls.ladder.friction == 0.25 and nulls.ladder.rails == () and nulls.ladder.top_platform_depth is None

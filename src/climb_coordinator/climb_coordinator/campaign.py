@@ -9,9 +9,12 @@ Families (``FAMILIES``; values in the units of the column ``value``):
 - ``rung_dz`` / ``rung_dx``: rung 2 moved -4..+4 cm in 1 cm steps (ladder base frame), as the
   ladder paper's rung-spacing error (it tolerated 2 cm; DRC-Hubo fell at 3 cm);
 - ``ball_4_contacts`` / ``ball_hand_moving`` / ``ball_foot_moving``: a ball of 5-20 kg in 2.5 kg
-  steps at 5.5 m/s on the torso, timed by the phase of the plan it hits (``PHASE_TIMES``: sim
-  times of the seed-0 plan: 4 contacts in transition 10's CoM shift, the left hand moving in
-  transition 13, the left foot moving in transition 16);
+  steps at 5.5 m/s on the torso, from behind and above (``BALL_DIRECTION``, 30 degrees off the
+  vertical: it meets the back of a robot leaning into the ladder squarely, impulse ~1.1-1.2 m v;
+  straight down it glances off the head and shoulders, ~0.65 m v), thrown on a transition of the
+  plan (``PHASE_TRANSITIONS``: the spec's ``at_transition`` and a delay: 4 contacts 0.5 s into
+  transition 10's CoM shift, the left hand in flight 2 s into transition 13, the right foot in
+  flight 3 s into transition 11);
 - ``box``: the DARPA-tasks paper's 2 kg object dropped on the robot (a 2 kg, 0.12 m sphere at
   4.4 m/s: a 1 m fall) while on the ladder;
 - ``ft_noise``: F/T white noise of sigma 0.5-4 % of each sensor's range (``FT_NOISE_LEVELS``),
@@ -37,9 +40,12 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-#: [s] sim time of each phase in the default 2-step plan (seed 0): the drop's ``at_time``
-PHASE_TIMES = {"4_contacts": 43.0, "hand_moving": 60.0, "foot_moving": 38.0}
+#: (transition of the default 2-step plan, seed 0, 1-based; delay [s] into it) of each phase: the
+#: drop's ``at_transition`` and ``at_time``
+PHASE_TRANSITIONS = {"4_contacts": (10, 0.5), "hand_moving": (13, 2.0), "foot_moving": (11, 3.0)}
 BALL_SPEED = 5.5  # [m/s] the ladder paper's
+#: world direction of flight of the balls: from behind the robot (-x) and above, 30 deg off vertical
+BALL_DIRECTION = (0.5, 0.0, -0.866)
 BALL_MASSES = tuple(5.0 + 2.5 * k for k in range(7))  # [kg] 5 .. 20
 OFFSETS = tuple(round(0.01 * k, 3) for k in range(-4, 5))  # [m] -4 .. +4 cm
 FT_NOISE_LEVELS = (0.5, 1.0, 2.0, 3.0, 4.0)  # [%] of each F/T sensor's range
@@ -76,11 +82,13 @@ class Case:
         elif self.family == "rung_dx":
             p["rung_offsets"] = [{"rung": 2, "dx": self.value, "dz": 0.0}]
         elif self.family.startswith("ball_"):
-            p["drops"] = [{"mass": self.value, "radius": 0.12, "speed": BALL_SPEED,
-                           "at_time": PHASE_TIMES[self.family[len("ball_"):]], "target_link": "torso"}]
+            transition, delay = PHASE_TRANSITIONS[self.family[len("ball_"):]]
+            p["drops"] = [{"mass": self.value, "radius": 0.12, "speed": BALL_SPEED, "at_transition": transition,
+                           "at_time": delay, "target_link": "torso", "direction": list(BALL_DIRECTION)}]
         elif self.family == "box":
-            p["drops"] = [{"mass": self.value, "radius": 0.12, "speed": 4.4, "at_time": PHASE_TIMES["4_contacts"],
-                           "target_link": "torso"}]
+            transition, delay = PHASE_TRANSITIONS["4_contacts"]
+            p["drops"] = [{"mass": self.value, "radius": 0.12, "speed": 4.4, "at_transition": transition,
+                           "at_time": delay, "target_link": "torso"}]
         elif self.family != "ft_noise":
             raise ValueError(f"unknown family {self.family!r} (known: {', '.join(FAMILIES)})")
         return p
@@ -260,5 +268,5 @@ def _plot(rows: list[dict], out_dir: pathlib.Path) -> None:
     plt.close(fig)
 
 
-__all__ = ["Case", "DEFAULT_FT_NOISE", "FAMILIES", "FT_NOISE_LEVELS", "PHASE_TIMES", "cases", "run_case", "run_campaign", "read_journal", "survived",
+__all__ = ["Case", "DEFAULT_FT_NOISE", "FAMILIES", "FT_NOISE_LEVELS", "PHASE_TRANSITIONS", "BALL_DIRECTION", "cases", "run_case", "run_campaign", "read_journal", "survived",
            "write_outputs"]

@@ -353,6 +353,11 @@ class InProcessExecutor:
     def hold(self) -> None:  # in process the caller simply stops ticking
         pass
 
+    def throw(self, drop, at_time: float) -> None:
+        from sim_bridge.commands import drop_request
+
+        self.backend.request_perturbation(drop_request(drop, at_time))
+
     def report(self) -> dict:
         out, log = self.out, self.out.log
         out.wall_time_s = time.perf_counter() - self.t0
@@ -431,6 +436,7 @@ def execute(req: ClimbRequest, plans, cs: ClimbSettings, scenario, initial_fixtu
     if goal is not None:  # a scene without a ladder: judged on its goal (scene_spec.md)
         session.goal = (np.asarray(goal.base_position, float), float(goal.tolerance))
     executor.session = session
+    session.transition_drops = [d for d in scenario.perturbation.drops if d.on_transition]
     try:
         session.run()
         out.plan = session.executed_plan()

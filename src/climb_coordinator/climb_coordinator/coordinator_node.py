@@ -488,7 +488,14 @@ def _make_node():
         # ------------------------------------------------------------------ requests
         def check(self, req: ClimbRequest) -> None:
             """Every refusal at once (SpecError with the field and the rule)."""
-            check_request(req)
+            scenario = check_request(req)
+            for i, drop in enumerate(scenario.perturbation.drops):
+                if drop.on_transition or drop.direction:
+                    field = "at_transition" if drop.on_transition else "direction"
+                    raise SpecError(f"perturbation.drops[{i}].{field}", "drops triggered by a transition or thrown "
+                                    "in a direction of their own run in process only (scripts/climb.py --graph "
+                                    "inprocess, scripts/campaign.py); through the graph a drop falls straight down "
+                                    "at its at_time")
             if req.command_delay_ticks:
                 delay = self._bridge_param("lockstep.command_delay_ticks")
                 if delay is not None and int(delay) != req.command_delay_ticks:
@@ -1046,6 +1053,9 @@ def _make_node():
 
         def hold(self) -> None:
             self.node.hold()
+
+        def throw(self, drop, at_time: float) -> None:  # refused up front (ClimbNode.check)
+            raise ClimbError("a drop triggered by a transition runs in process only")
 
         def report(self) -> dict:
             wall = time.monotonic() - self.t0_wall

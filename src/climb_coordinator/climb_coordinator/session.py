@@ -206,6 +206,7 @@ class Executor(Protocol):
     def settle(self, duration_s: float) -> ExecStatus: ...
     def measured_q(self) -> np.ndarray: ...
     def report(self) -> dict: ...
+    def throw(self, drop: Any, at_time: float) -> None: ...  # a scenario drop (DropSpec) at sim time at_time [s]
 
 
 class Judge(Protocol):
@@ -282,6 +283,10 @@ class ClimbSession:
         self.goal: tuple[np.ndarray, float] | None = None
         self.settle_speed_max: float | None = None  # [m/s] largest base speed while settling
         self.planned: list[WholeBodyPlan] = []  # every plan as planned (before max_transitions)
+        #: the scenario's drops triggered by a transition (DropSpec.at_transition > 0; set by the
+        #: caller): thrown through Executor.throw when the climb's transition N starts
+        self.transition_drops: list = []
+        self.thrown: list[dict] = []
 
     # ------------------------------------------------------------------ progress (adapters call)
     @property
@@ -300,8 +305,16 @@ class ClimbSession:
         if self.n_up is not None and index == self.n_up and not self.top_feet:
             self.top_feet.update(self.judge.feet_rungs())
         t = plan.transitions[index]
-        self.say(f"t = {sim_time_s:6.2f} s  transition {self.done_before + index + 1}/{self.n_transitions}: "
+        number = self.done_before + index + 1
+        self.say(f"t = {sim_time_s:6.2f} s  transition {number}/{self.n_transitions}: "
                  f"{t.primitive} {t.moving_limb}")
+        for k, drop in enumerate(self.transition_drops):
+            if drop.at_transition == number and not any(d["drop"] == k for d in self.thrown):
+                at = sim_time_s + drop.at_time
+                self.executor.throw(drop, at)
+                self.thrown.append({"drop": k, "transition": number, "at_time_s": round(at, 3), "mass_kg": drop.mass})
+                self.say(f"drop {k}: a {drop.mass:g} kg ball thrown at {drop.target_link} at t = {at:.2f} s "
+                         f"(transition {number})")
 
     def progress(self, index: int) -> float:
         """[0, 1] of the transitions planned so far (a replan may add some)."""
@@ -480,6 +493,8 @@ class ClimbSession:
         s.update(self.executor.report())
         if self.replans or req.plan_cycles is not None:
             s["replans"] = self.replans
+        if self.thrown:
+            s["drops_thrown"] = self.thrown
         if status.cancelled:
             s["cancelled"] = True
         reasons = []

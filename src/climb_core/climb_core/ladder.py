@@ -64,6 +64,8 @@ allowed by the spec ("the project may add fields").
 | perturbation.drops[i].speed            | 5.5                       | m/s  | > 0                        |
 | perturbation.drops[i].at_time          | 0.0                       | s    | >= 0, simulated time       |
 | perturbation.drops[i].target_link      | torso                     |      | non-empty string           |
+| perturbation.drops[i].direction        | the bridge's (down)       |      | 3 numbers, not all zero: world direction of flight (extension) |
+| perturbation.drops[i].at_transition    | 0                         |      | integer >= 0; > 0: thrown at_time after the climb's transition N (1-based) starts, 0: at at_time (extension) |
 
 Rules applied everywhere: every number must be a real number (not a string, not a boolean), finite
 and with magnitude at most ``MAX_ABS_VALUE`` (a sanity bound that also catches ``1e308``-style
@@ -274,6 +276,8 @@ SCHEMA = Block({
             "speed": Num(5.5, Range(0.0, None, lo_open=True, unit="m/s")),
             "at_time": Num(0.0, Range(0.0, None, unit="s")),
             "target_link": Text("torso", non_empty=True),
+            "direction": Vec3(None),
+            "at_transition": Num(0, Range(0, None), integer=True),
         })),
     }, default={}),
 })
@@ -559,8 +563,14 @@ class DropSpec:
     mass: float = 10.0  # [kg]
     radius: float = 0.12  # [m]
     speed: float = 5.5  # [m/s]
-    at_time: float = 0.0  # [s] simulated time
+    at_time: float = 0.0  # [s] simulated time (after the start of transition at_transition when > 0)
     target_link: str = "torso"
+    direction: tuple[float, ...] = ()  # world direction of flight (unit); (): the simulator's default (down)
+    at_transition: int = 0  # > 0: thrown at_time after the climb's transition N (1-based) starts
+
+    @property
+    def on_transition(self) -> bool:
+        return self.at_transition > 0
 
 
 @dataclass(frozen=True)
@@ -632,13 +642,24 @@ def parse_scenario(data: Any, name: str = "") -> Scenario:
     return scenario
 
 
+def _unit_direction(v, path: str) -> tuple[float, ...]:
+    if v is None:
+        return ()
+    n = math.sqrt(sum(float(x) ** 2 for x in v))
+    if n < 1e-9:
+        raise SpecError(path, f"must be a non-zero direction, got {list(v)}")
+    return (float(v[0]) / n, float(v[1]) / n, float(v[2]) / n)
+
+
 def _build(doc: dict, name: str) -> Scenario:
     pert = doc["perturbation"]
     perturbation = PerturbationSpec(
         rung_offsets=tuple(RungOffset(o["rung"], o["dx"], o["dz"]) for o in pert["rung_offsets"]),
         rails_dy=pert["rails_dy"],
-        drops=tuple(DropSpec(d["mass"], d["radius"], d["speed"], d["at_time"], d["target_link"])
-                    for d in pert["drops"]),
+        drops=tuple(DropSpec(d["mass"], d["radius"], d["speed"], d["at_time"], d["target_link"],
+                             _unit_direction(d["direction"], f"perturbation.drops[{i}].direction"),
+                             d["at_transition"])
+                    for i, d in enumerate(pert["drops"])),
     )
     ladder = None if doc["ladder"] is None else _build_ladder(doc["ladder"])
     return Scenario(name=name, ladder=ladder, perturbation=perturbation, description=doc["description"])
@@ -775,7 +796,8 @@ def scenario_to_dict(scenario: Scenario) -> dict[str, Any]:
         "rung_offsets": [{"rung": o.rung, "dx": o.dx, "dz": o.dz} for o in pert.rung_offsets],
         "rails_dy": pert.rails_dy,
         "drops": [{"mass": d.mass, "radius": d.radius, "speed": d.speed, "at_time": d.at_time,
-                   "target_link": d.target_link} for d in pert.drops],
+                   "target_link": d.target_link, "at_transition": d.at_transition,
+                   **({"direction": list(d.direction)} if d.direction else {})} for d in pert.drops],
     }
     return doc
 

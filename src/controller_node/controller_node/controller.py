@@ -36,8 +36,10 @@ from .contact_set import ContactSet
 from .estimator import RobotState
 from .fsm import Fsm, FsmTable, limb_kind, load_fsm_table
 from .ft_monitor import FtMonitor, ft_sensor_frames
+from .impact import ImpactMonitor
 from .params import ControllerParams
 from .qp import QpFailure, save_problem
+from .recovery import Brace, contact_point
 from .reference import PathReference
 from .tasks import BaseOrientationTask, ComTask, FrameTask, PostureTask, Task
 from .wholebody import WholeBodyQP, WholeBodyResult
@@ -136,6 +138,7 @@ class Controller:
         self.ft = FtMonitor(ft_sensor_frames(robot.model, robot.config.ft_sensors),
                             [(limb, spec.ft_sensor) for limb, spec in self.limbs.items()], params.guarded,
                             params.control_period_s)
+        self.impact = ImpactMonitor(params.impact, params.control_period_s)
         gains = PwmGainArrays.from_robot_config(robot.config, self.joint_names)
         scale = params.compliance.gain_scale
         self.compliance = ComplianceLaw(PwmGainArrays(gains.kp * scale, gains.kd * scale),
@@ -187,6 +190,7 @@ class Controller:
         self.saved_failures: list[pathlib.Path] = []
         self.dampers_released = 0  # ticks solved only after releasing dampers within the security distance
         self._failing_since: float | None = None  # [s] first tick of the current run of infeasible QPs
+        self.brace: Brace | None = None  # the brace under way (fsm.BraceState), None outside it
         self._released_pairs: list[tuple[str, str]] = []
         self.fallback_active = False
         self._q_fallback: np.ndarray | None = None
@@ -235,6 +239,9 @@ class Controller:
         self._qdd_held = None
         self.guard_off.clear()
         self.ft.update(self.wb.data.oMf, state.ft)
+        self.brace = None
+        self.impact = ImpactMonitor(self.params.impact, self.params.control_period_s)
+        self.impact.mute_until(state.time + self.params.impact.startup_s)  # the filters start; the feet settle
         self.fsm.begin(self)
 
     def set_plan(self, plan: WholeBodyPlan) -> None:
@@ -299,6 +306,10 @@ class Controller:
         self.grippers_out, self._queued_grippers = self._queued_grippers, []
         self.wb.update(state.q, state.v)
         self.ft.update(self.wb.data.oMf, state.ft)
+        hit = self.impact.update(self.time, self.ft, state.v[6:],
+                                 self._qdd_held[6:] if self._qdd_held is not None else None)
+        if hit is not None:
+            self._on_impact(hit)
         self.fsm.step(self)
         self.contact_set.advance(self.time)
         contacts = self.contact_set.ordered()
@@ -319,6 +330,8 @@ class Controller:
             if self._failing_since is None:
                 self._failing_since = self.time
             in_grace = self.time - self._failing_since < self.params.qp.failure_grace_s - 1e-9
+            if self.brace is not None:  # a blow can leave no feasible QP for a while: bracing rides it out
+                in_grace = in_grace or self.time - self.brace.since < self.params.impact.brace_max_s
             if self.fsm.state != "failure" and not in_grace:
                 self.fsm.fire(self, "qp_failure")
             if not in_grace or self.fsm.state == "failure":
@@ -332,8 +345,10 @@ class Controller:
             self._failing_since = None
         fallback = False
         if result is None:  # the hold QP fails too: relaxed QP (no torque / joint limits), then
-            fallback = True  # the equality-only KKT solve; torques saturated below
-            for relaxed in (self.wb.solve_relaxed, self.wb.solve_equalities):
+            fallback = True  # the equality-only KKT solve; torques saturated below. Bracing: the
+            # joint PD around the configuration at the impact instead (measured on 7 kg balls:
+            # the relaxed solve's saturated torques for the whole brace threw the robot off)
+            for relaxed in ((self.wb.solve_relaxed, self.wb.solve_equalities) if self.brace is None else ()):
                 try:
                     candidate = relaxed(contacts, self.active_tasks)
                 except (QpFailure, np.linalg.LinAlgError):
@@ -396,6 +411,86 @@ class Controller:
         return result
 
     # ------------------------------------------------------------------ failure handling
+    def _on_impact(self, hit) -> None:
+        """An impact seen on the F/T or the joints (impact.py): brace, unless in failure (the
+        fallback already holds) or bracing already."""
+        state = self.fsm.state
+        if state in ("brace", "failure") or self.state is None:
+            return
+        self.emit("impact_detected", source=hit.source, value=round(hit.value, 3),
+                  threshold=round(hit.threshold, 3), state=state)
+        self.fsm.fire(self, "impact")
+
+    def begin_brace(self) -> None:
+        """Hold every contact at full load, grasps at the whole grip strength, the posture task
+        stiffened toward the configuration now (fsm.BraceState)."""
+        interrupted = self.fsm.history[-1][1] if self.fsm.history else ""
+        oMf = self.wb.data.oMf
+        brace = Brace(self.time, interrupted, {limb: contact_point(oMf, c) for limb, c in self.contacts.items()},
+                      self.posture_task.stiffness)
+        self.contact_set.cancel(("release",))
+        for limb, contact in self.contacts.items():
+            if contact.bilateral:
+                brace.force_limits[limb] = contact.force_limit
+                contact.force_limit = (contact.force_limit * self.params.impact.grip_force_fraction
+                                       / max(self.params.contacts.grip_force_fraction, 1e-6))
+                self._queued_grippers.append(GripperRequest(limb, "close", 0.0, self.time))
+        self.hold_here()
+        self._q_fallback = self.state.q.copy()  # the joint PD's target while the QP is infeasible
+        self.posture_task.stiffness = brace.posture_stiffness * self.params.impact.posture_stiffness_scale
+        self.brace = brace
+        self.emit("brace_started", interrupted=interrupted, transition=self.transition_index,
+                  contacts=sorted(self.contacts))
+
+    def end_brace(self) -> None:
+        brace = self.brace
+        if brace is None:
+            return
+        self.posture_task.stiffness = brace.posture_stiffness
+        for limb, limit in brace.force_limits.items():
+            if limb in self.contacts:
+                self.contacts[limb].force_limit = limit
+        self.impact.mute_until(self.time + self.params.impact.cooldown_s)
+        if not self.fallback_active:
+            self._q_fallback = None
+        self.emit("brace_ended", duration=round(self.time - brace.since, 3), displacement=dict(brace.displacement))
+        self.brace = None
+
+    def brace_settled(self) -> bool:
+        """Every joint slower than ``impact.settle_joint_speed``."""
+        return bool(np.max(np.abs(self.state.v[6:])) < self.params.impact.settle_joint_speed)
+
+    def lost_contacts(self) -> list[str]:
+        """Active contacts whose reference point moved more than ``impact.contact_lost_distance``
+        since the impact (a foot knocked off its rung, a grasp slid along it): they leave the
+        contact set (the QP must not push on them) and are returned."""
+        brace = self.brace
+        if brace is None:
+            return []
+        oMf = self.wb.data.oMf
+        lost = []
+        for limb, anchor in brace.anchors.items():
+            contact = self.contacts.get(limb)
+            if contact is None:
+                continue
+            moved = float(np.linalg.norm(contact_point(oMf, contact) - anchor))
+            brace.displacement[limb] = round(moved, 4)
+            if moved > self.params.impact.contact_lost_distance:
+                lost.append(limb)
+        for limb in lost:
+            self.remove_contact(limb)
+            self.emit("contact_lost", limb=limb, moved=brace.displacement[limb])
+        return lost
+
+    def resume_after_brace(self) -> None:
+        """The interrupted transition goes on from where the robot is: ``select`` picks it again
+        (not finished) and its state blends from the measured configuration; a placement whose
+        contact was being loaded counts as made."""
+        brace = self.brace
+        if brace is not None and brace.interrupted == "load" and self.moving_limb in self.contacts:
+            self.finish_transition()
+        self.emit("brace_resumed", interrupted=brace.interrupted if brace else "", transition=self.transition_index)
+
     def _on_failure(self, failure: QpFailure) -> None:
         self.qp_failures += 1
         p = self.params.qp

@@ -163,6 +163,11 @@ class Context(Protocol):
     def creep(self, distance: float) -> None: ...
     def set_guard(self, limb: str, surface: str, on: bool) -> None: ...
     def enter_fallback(self) -> None: ...
+    def begin_brace(self) -> None: ...
+    def end_brace(self) -> None: ...
+    def brace_settled(self) -> bool: ...
+    def lost_contacts(self) -> list[str]: ...
+    def resume_after_brace(self) -> None: ...
     def emit(self, kind: str, **values: Any) -> None: ...
 
 
@@ -392,6 +397,37 @@ class LoadState(State):
         return None
 
 
+class BraceState(State):
+    """After an impact (the controller fires ``impact``, impact.py): every active contact held at
+    full load (a release under way is cancelled, grasps allowed the whole grip strength), the
+    posture task stiffened toward the configuration at the impact, a QP that the blow makes
+    infeasible answered with the relaxed solve instead of a failure. Once ``impact.brace_time_s``
+    has passed and the joints have settled (or ``impact.brace_max_s``): a contact that moved more
+    than ``impact.contact_lost_distance`` is lost (``contact_lost``: hold and ask for a replan);
+    otherwise the interrupted transition resumes from where the robot is (``resume``)."""
+
+    name = "brace"
+    events = ("resume", "contact_lost")
+
+    def start(self, ctx: Context) -> None:
+        ctx.begin_brace()
+
+    def run(self, ctx: Context) -> str | None:
+        p = ctx.params.impact
+        t = self.elapsed(ctx)
+        if t < p.brace_time_s or (t < p.brace_max_s and not ctx.brace_settled()):
+            return None
+        lost = ctx.lost_contacts()
+        if lost:
+            ctx.replan_reason = "contact_lost"
+            return "contact_lost"
+        ctx.resume_after_brace()
+        return "resume"
+
+    def teardown(self, ctx: Context) -> None:
+        ctx.end_brace()
+
+
 class FailureState(State):
     name = "failure"
     events = ()
@@ -402,7 +438,7 @@ class FailureState(State):
 
 STATE_CLASSES: dict[str, type[State]] = {cls.name: cls for cls in (
     IdleState, HoldState, ReplanNeededState, SelectState, MoveComState, UnloadState, OpenGripperState,
-    TransferState, SearchState, CloseGripperState, LoadState, FailureState)}
+    TransferState, SearchState, CloseGripperState, LoadState, BraceState, FailureState)}
 
 
 class Fsm:

@@ -93,6 +93,14 @@ class FtMonitor:
         """Filtered force of the limb's sensor in world axes [N] (zeros before any reading)."""
         return self._filtered.get(limb, np.zeros(3)).copy()
 
+    def jump(self, limb: str) -> float:
+        """[N] how far the filtered force departs from the slow-filtered one (a sudden change: an
+        impact; a contact's force ramp or a guarded placement moves both filters together)."""
+        fast, slow = self._filtered.get(limb), self._slow.get(limb)
+        if fast is None or slow is None:
+            return 0.0
+        return float(np.linalg.norm(fast - slow))
+
     def tare(self, limb: str) -> None:
         """Forces are read against this tick's from now on (:meth:`change`)."""
         self._tare[limb] = self.force(limb)

@@ -176,6 +176,44 @@ class GuardedParams:
 
 
 @dataclass(frozen=True)
+class ImpactParams:
+    enabled: bool = param(True, unit="-", description="detect impacts (F/T and joint velocities) and brace")
+    force_jump: float = param(400.0, unit="N", min=0.0,
+                              description="an impact: a limb's F/T force (10 ms filter) departs this far from its "
+                                          "200 ms filter within a tick (or noise_sigmas of its noise when larger); "
+                                          "contact ramps and guarded placements change it slowly")
+    noise_sigmas: float = param(8.0, unit="-", min=0.0,
+                                description="the force jump is at least this many standard deviations of the "
+                                            "filtered F/T noise (estimated online)")
+    joint_velocity_jump: float = param(12.0, unit="rad/s", min=0.0,
+                                       description="an impact: a joint's velocity changed this much more in one "
+                                                   "control period than the last QP's acceleration explains (0: off)")
+    brace_time_s: float = param(0.5, unit="s", min=0.0, description="least time in the brace state")
+    brace_max_s: float = param(2.0, unit="s", min=0.0,
+                               description="longest wait in the brace state for the joints to settle")
+    settle_joint_speed: float = param(0.3, unit="rad/s", min=0.0,
+                                      description="the brace ends once every joint is slower than this")
+    posture_stiffness_scale: float = param(1.0, unit="-", min=1.0,
+                                           description="the posture task's stiffness toward the configuration at "
+                                                       "the impact is multiplied by this while bracing (measured on "
+                                                       "a 7 kg ball: 4 drove the QP infeasible for the whole brace "
+                                                       "and two contacts were lost; 1 held them)")
+    grip_force_fraction: float = param(0.8, unit="-", min=0.0, max=1.0,
+                                       description="share of the grip strength a grasp may use while bracing "
+                                                   "(measured on a 7 kg ball: 1.0 let the QP lean on the grasps "
+                                                   "until they slid and the robot fell; 0.8, the contacts' share, "
+                                                   "held)")
+    contact_lost_distance: float = param(0.03, unit="m", min=0.0,
+                                         description="after a brace, an active contact whose contact surface moved "
+                                                     "this far from where it was made is lost (replan)")
+    cooldown_s: float = param(0.5, unit="s", min=0.0,
+                              description="no new impact is detected this long after a brace ends")
+    startup_s: float = param(0.5, unit="s", min=0.0,
+                             description="no impact is detected this long after a reset (the F/T filters start, "
+                                         "the feet settle on the ground)")
+
+
+@dataclass(frozen=True)
 class FallbackParams:
     natural_frequency: float = param(15.0, unit="rad/s", min=0.0,
                                      description="joint PD around the configuration at failure, gains scaled by "
@@ -240,6 +278,7 @@ class ControllerParams:
     tasks: TaskParams = group(TaskParams, "task weights and stiffnesses")
     collision: CollisionParams = group(CollisionParams, "velocity-damper collision avoidance (eq. 6-8)")
     guarded: GuardedParams = group(GuardedParams, "guarded motion of the add-contact state")
+    impact: ImpactParams = group(ImpactParams, "impact detection and the brace state")
     fallback: FallbackParams = group(FallbackParams, "safe hold after a QP failure")
     compliance: ComplianceParams = group(ComplianceParams, "PWM compliance mode")
     gripper: GripperParams = group(GripperParams, "gripper states")

@@ -200,6 +200,7 @@ class PerturbRequest:
     dy: float = 0.0  # [m] rails_shift, along the ladder's y (to the robot's left)
     dz: float = 0.0  # [m] rung_offset, vertical
     at_time: float = 0.0  # [s] sim time at which it takes effect; 0 = next tick
+    direction: tuple[float, ...] = ()  # drop: world direction of flight; () = the bridge's drops.direction
 
     def __post_init__(self) -> None:
         f = "perturbation"
@@ -225,5 +226,17 @@ class PerturbRequest:
                     raise SpecError(f"{f}.{name}", f"a drop needs {name} > 0, got {getattr(self, name)}")
             if not self.target_link:
                 raise SpecError(f"{f}.target_link", "a drop needs a target link")
+            if self.direction:
+                d = np.asarray(self.direction, dtype=float)
+                if d.shape != (3,) or not np.all(np.isfinite(d)) or float(np.linalg.norm(d)) < 1e-9:
+                    raise SpecError(f"{f}.direction", f"must be a finite non-zero 3-vector, got {list(self.direction)}")
+                object.__setattr__(self, "direction", tuple(float(x) for x in d / np.linalg.norm(d)))
         if kind == "rung_offset" and int(self.rung) < 1:
             raise SpecError(f"{f}.rung", f"rungs are numbered from 1, got {self.rung}")
+
+
+def drop_request(drop, at_time: float | None = None) -> PerturbRequest:
+    """The PerturbRequest of a scenario's drop (climb_core.ladder.DropSpec), thrown at ``at_time``
+    (default: the drop's own)."""
+    return PerturbRequest("drop", mass=drop.mass, radius=drop.radius, speed=drop.speed, target_link=drop.target_link,
+                          at_time=drop.at_time if at_time is None else at_time, direction=tuple(drop.direction))

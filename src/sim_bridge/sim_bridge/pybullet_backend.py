@@ -23,7 +23,8 @@ from climb_core.errors import SpecError
 from . import frames
 from .actuation import ActuatorBank
 from .backend import Backend, BallState, BaseTruth, ImuReading, ResetRequest, SimState, Wrench
-from .commands import GRIPPER_CLOSE, GRIPPER_OPEN, POSITION, ActuatorCommand, GripperRequest, PerturbRequest
+from .commands import (GRIPPER_CLOSE, GRIPPER_OPEN, POSITION, ActuatorCommand, GripperRequest, PerturbRequest,
+                       drop_request)
 from .grasp import GraspManager
 from .motor import MotorParams
 from .params import BridgeParams, load_bridge_params
@@ -157,8 +158,9 @@ class PyBulletBackend(Backend):
         for hand in hands_to_latch:
             self.grasps.close(hand, 1.0)
         for drop in (self.scenario.perturbation.drops if self.params.apply_perturbation else ()):
-            self.request_perturbation(PerturbRequest("drop", mass=drop.mass, radius=drop.radius, speed=drop.speed,
-                                                     target_link=drop.target_link, at_time=drop.at_time))
+            if drop.on_transition:  # thrown by the climb session when the transition starts
+                continue
+            self.request_perturbation(drop_request(drop))
         self._imu_velocity_prev = self._base_kinematics()[2]
         self._imu_acc = np.zeros(3)
         self._built = (robot_name, robot, ladder_source, scenario, env, q0, hands_to_latch, seed)
@@ -847,7 +849,7 @@ class PyBulletBackend(Backend):
             self._emit("perturbation", f"drop ignored: {err}", 2)
             return
         d = self.params.drops
-        direction = np.asarray(d.direction, dtype=float)
+        direction = np.asarray(request.direction or d.direction, dtype=float)
         direction /= np.linalg.norm(direction)
         if link == -1:
             target = self._base_kinematics()[1]
