@@ -14,6 +14,7 @@ class Settings:
     extra_time_s = 10.0
     settle_time_s = 1.0
     foot_force_min = 20.0
+    failure_recovery_s = 3.0
 
 
 def _plan(n: int) -> WholeBodyPlan:
@@ -34,8 +35,9 @@ class Plans:
 
 
 class Executor:
-    def __init__(self, statuses):
+    def __init__(self, statuses, settles=()):
         self.statuses = list(statuses)
+        self.settles = list(settles)  # what settle returns (else the last status)
         self.started = []
 
     def start(self, plan):
@@ -46,6 +48,8 @@ class Executor:
         return self.last
 
     def settle(self, duration_s):
+        if self.settles:
+            self.last = self.settles.pop(0)
         return self.last
 
     def measured_q(self):
@@ -130,6 +134,18 @@ def test_a_fault_or_a_fall_stops_without_replanning():
         plans = Plans([PlanOutcome(True, _plan(4), 1.0, 5)])
         s = ClimbSession(ClimbRequest(rungs=1), Settings(), plans, Executor([status]), Judge(0)).run()
         assert not s["success"] and text in s["failure_reason"] and len(plans.calls) == 1
+
+
+def test_a_controller_failure_that_recovers_is_replanned_from_the_measured_state():
+    """The controller entered failure at transition 2; the session waits (settle) and the hold QP
+    solves again: replan_needed (qp_failure), one replan from the stance before transition 2."""
+    plans = Plans([PlanOutcome(True, _plan(4), 1.0, 5), PlanOutcome(True, _plan(2), 1.0, 3)])
+    ex = Executor([ExecStatus(5.0, "failure", 1), ExecStatus(12.0, "hold", 1)],
+                  settles=[ExecStatus(8.0, "replan_needed", 1, replan_reason="qp_failure")])
+    s = ClimbSession(ClimbRequest(rungs=1), Settings(), plans, ex, Judge(1)).run()
+    assert s["success"], s["failure_reason"]
+    assert [(r["reason"], r["why"]) for r in s["replans"]] == [("replan_needed", "qp_failure")]
+    assert len(plans.calls) == 2 and plans.calls[1][1]  # replanned from (measured q, stance)
 
 
 def test_cancel_is_reported_as_cancelled():

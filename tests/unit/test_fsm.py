@@ -361,3 +361,37 @@ def test_a_contact_moved_during_the_brace_is_lost_and_the_fsm_asks_for_a_replan(
     assert "right_hand" in controller.contacts and controller.contacts["right_hand"].scale == 1.0
     (event,) = controller.events_of("replan_needed")
     assert event.values["reason"] == "contact_lost"
+
+
+def test_a_qp_failure_that_clears_ends_in_replan_needed_not_in_failure(ladder):
+    """The QP fails for 0.4 s (longer than qp.failure_grace_s) in the middle of a transfer: the FSM
+    goes to failure and holds; once the hold QP has solved for qp.recover_after_s with the joints
+    settled, it leaves failure for replan_needed (reason qp_failure), the contacts it held kept."""
+    from controller_node.qp import QpFailure
+
+    robot, env, stance, q, transition = ladder
+    params = load_controller_params(**{"collision.enabled": False, "qp.max_saved_failures": 0})
+    controller = Controller(robot, params, env)
+    loop = KinematicLoop(controller, q)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    controller.set_plan(plan_of(robot, env, stance, [transition]))
+    _run_until_state(loop, "transfer", 600)
+    real, broken_until = controller.wb.solve, controller.time + 0.4
+
+    def solve(*args, **kwargs):
+        if controller.time < broken_until:
+            raise QpFailure(None, -1, "test", "made infeasible by the test")
+        return real(*args, **kwargs)
+
+    controller.wb.solve = solve
+    states, out = _run_until_settled(loop, 200)
+    assert states[-1] == "failure"
+    held = set(controller.contacts)
+    _run_until_state(loop, "replan_needed", 1000)
+    assert controller.replan_reason == "qp_failure"
+    (recovered,) = controller.events_of("failure_recovered")
+    assert recovered.time - broken_until >= params.qp.recover_after_s - 1e-9
+    assert set(controller.contacts) == held == {"left_foot", "right_foot", "left_hand"}
+    assert not controller.fallback_active
+    # and the next plan is taken from there
+    controller.set_plan(plan_of(robot, env, stance, []))

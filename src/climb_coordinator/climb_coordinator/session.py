@@ -365,6 +365,13 @@ class ClimbSession:
         cycles = first
         forced = 0
         while not (status.fault or status.fell):
+            if status.fsm_state == "failure" and cs.failure_recovery_s > 0 and forced < req.max_forced_replans:
+                # the controller holds on the fallback; it asks for a replan once its QP solves again
+                self.say(f"controller failure at transition {self.done_before + max(status.transition_index, 0) + 1}: "
+                         f"waiting up to {cs.failure_recovery_s:.1f} s for it to recover")
+                status = self.executor.settle(cs.failure_recovery_s)
+                if status.fault or status.fell or status.fsm_state != "replan_needed":
+                    break
             if status.fsm_state == "hold" and req.plan_cycles is not None and cycles < req.rungs:
                 k = min(req.plan_cycles, req.rungs - cycles)
                 stance = self.current.transitions[-1].target_stance  # the stance the controller holds

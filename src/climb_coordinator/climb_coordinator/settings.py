@@ -28,6 +28,9 @@ class ClimbSettings:
     snapshot_width: int = 320  # [px]
     snapshot_height: int = 400  # [px]
     camera_distance: float = 2.4  # [m]
+    #: [s] sim time the session waits, after the controller entered failure, for it to recover
+    #: (the hold QP solving again: replan_needed, reason qp_failure); 0: a failure ends the climb
+    failure_recovery_s: float = 3.0
     camera_yaw_deg: float = 60.0  # [deg]
     camera_pitch_deg: float = -10.0  # [deg]
 
@@ -70,6 +73,7 @@ def load_climb_settings(path: str | pathlib.Path | None = None) -> ClimbSettings
     return ClimbSettings(
         extra_time_s=_num(run, "extra_time_s", "climb.run"),
         settle_time_s=_num(run, "settle_time_s", "climb.run"),
+        failure_recovery_s=_num(run, "failure_recovery_s", "climb.run") if "failure_recovery_s" in run else 3.0,
         plan_joint_limit_margin=_num(plan, "joint_limit_margin", "climb.plan"),
         controller_overrides=dict(overrides), compliance_overrides=dict(compliance), planner_overrides=dict(planner),
         bag_rate_hz=_num(record, "bag_rate_hz", "climb.record", positive=True),

@@ -191,6 +191,7 @@ class Controller:
         self.dampers_released = 0  # ticks solved only after releasing dampers within the security distance
         self._failing_since: float | None = None  # [s] first tick of the current run of infeasible QPs
         self.brace: Brace | None = None  # the brace under way (fsm.BraceState), None outside it
+        self._solved_since: float | None = None  # [s] first tick of the current run of solved QPs
         self._released_pairs: list[tuple[str, str]] = []
         self.fallback_active = False
         self._q_fallback: np.ndarray | None = None
@@ -343,6 +344,11 @@ class Controller:
                     result = None
         else:
             self._failing_since = None
+        if result is not None and qp_status == QP_OK:
+            if self._solved_since is None:
+                self._solved_since = self.time
+        else:
+            self._solved_since = None
         fallback = False
         if result is None:  # the hold QP fails too: relaxed QP (no torque / joint limits), then
             fallback = True  # the equality-only KKT solve; torques saturated below. Bracing: the
@@ -520,6 +526,18 @@ class Controller:
         for limb in [limb for limb, ramp in self.contact_set.ramps.items() if ramp.kind == "engage"]:
             self.remove_contact(limb)
         self.contact_set.cancel(("release", "engage"))
+
+    def failure_recovered(self) -> bool:
+        """In failure: the QP (hold tasks, the contacts kept) has solved for ``qp.recover_after_s``
+        without a break and the joints have settled."""
+        after = self.params.qp.recover_after_s
+        return (after > 0.0 and self._solved_since is not None and self.time - self._solved_since >= after - 1e-9
+                and self.brace_settled())
+
+    def leave_failure(self) -> None:
+        self.fallback_active = False
+        self._q_fallback = None
+        self.emit("failure_recovered", contacts=sorted(self.contacts))
 
     def _static_torques(self) -> np.ndarray:
         """Joint torques [N m] holding the current configuration still on the active contacts:

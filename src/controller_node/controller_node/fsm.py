@@ -168,6 +168,8 @@ class Context(Protocol):
     def brace_settled(self) -> bool: ...
     def lost_contacts(self) -> list[str]: ...
     def resume_after_brace(self) -> None: ...
+    def failure_recovered(self) -> bool: ...
+    def leave_failure(self) -> None: ...
     def emit(self, kind: str, **values: Any) -> None: ...
 
 
@@ -429,11 +431,25 @@ class BraceState(State):
 
 
 class FailureState(State):
+    """The QP kept failing: hold tasks at the configuration at failure (the PD fallback while the
+    QP cannot be solved). Once the hold QP has solved for ``qp.recover_after_s`` and the joints
+    have settled, ``recovered``: the plan is abandoned and a replan asked for (reason
+    ``qp_failure``)."""
+
     name = "failure"
-    events = ()
+    events = ("recovered",)
 
     def start(self, ctx: Context) -> None:
         ctx.enter_fallback()
+
+    def run(self, ctx: Context) -> str | None:
+        if ctx.failure_recovered():
+            ctx.replan_reason = "qp_failure"
+            return "recovered"
+        return None
+
+    def teardown(self, ctx: Context) -> None:
+        ctx.leave_failure()
 
 
 STATE_CLASSES: dict[str, type[State]] = {cls.name: cls for cls in (

@@ -31,6 +31,10 @@ class QpParams:
         "consecutive infeasible ticks tolerated before the FSM's qp_failure event (each one counted, saved "
         "and answered with the relaxed solve, saturated, of the current tasks): an impact can make the QP "
         "infeasible for a few ticks. 0 = fail on the first"))
+    recover_after_s: float = param(1.0, unit="s", min=0.0, description=(
+        "in failure: once the QP has solved this long without a break (the hold tasks on the contacts kept) "
+        "and every joint is slower than impact.settle_joint_speed, the FSM leaves failure for replan_needed "
+        "(reason qp_failure: the climb session replans from the measured state). 0 = stay in failure"))
     acceleration_regularization: float = param(1e-5, unit="-", min=1e-12, description="weight on |qdd|^2")
     force_regularization: float = param(1e-4, unit="1/N^2", min=1e-12,
                                         description="weight on the squared contact force variables")
