@@ -304,10 +304,52 @@ def _run_until_state(loop: KinematicLoop, state: str, ticks: int):
     raise AssertionError(f"no {state!r} within {ticks} ticks (in {loop.c.fsm.state!r})")
 
 
-def test_an_impact_mid_transfer_braces_then_the_transfer_resumes_and_completes(ladder):
-    """An impact (injected as the monitor would report it) while the right hand travels: the
-    brace holds the three contacts left where they are; nothing moved, so the interrupted
-    transition starts again from where the robot is and ends on rung 6 as planned."""
+def _com_hold(stance, q, duration=2.0):
+    """A CoM "shift" that keeps the CoM where it is: every limb on its hold, a path of one pose."""
+    from climb_core.contact import Transition
+
+    return Transition("com_hold", "", stance, stance, np.array([0.0, duration]), np.vstack([q, q]))
+
+
+def test_an_impact_in_a_com_shift_braces_then_the_plan_resumes_and_completes(ladder):
+    """An impact (injected as the monitor reports it) during a CoM shift, four contacts: the brace
+    holds them; nothing moved, so the interrupted transition starts again from where the robot is
+    and the plan goes on (the right hand onto rung 6)."""
+    from controller_node.impact import Impact
+
+    robot, env, stance, q, transition = ladder
+    controller = Controller(robot, load_controller_params(**{"collision.enabled": False}), env)
+    loop = KinematicLoop(controller, q)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    controller.set_plan(plan_of(robot, env, stance, [_com_hold(stance, q), transition]))
+    T_target = robot.T_world_surface("right_hand", transition.path[-1])
+    loop.contact_plane = (T_target[:3, 3] - 0.015 * T_target[:3, 2], T_target[:3, 2])  # found 1.5 cm early
+    _run_until_state(loop, "move_com", 200)
+    for _ in range(100):
+        loop.step()
+    controller._on_impact(Impact(controller.time, "ft:left_foot", 900.0, 400.0))
+    assert controller.fsm.state == "brace"
+    states, out = _run_until_settled(loop, 3000)
+    assert states[:2] == ["brace", "move_com"] and states[-1] == "hold", states
+    (hit,) = controller.events_of("impact_detected")
+    assert hit.values["braced"] and hit.values["state"] == "move_com"
+    (started,) = controller.events_of("brace_started")
+    assert started.values["interrupted"] == "move_com"
+    assert started.values["contacts"] == ["left_foot", "left_hand", "right_foot", "right_hand"]
+    (ended,) = controller.events_of("brace_ended")
+    assert ended.values["duration"] >= controller.params.impact.brace_time_s - 1e-9
+    assert max(ended.values["displacement"].values()) < 0.005  # the kinematic robot held still
+    assert controller.events_of("brace_resumed") and not controller.events_of("contact_lost")
+    assert [e.values["index"] for e in controller.events_of("transition_started")] == [0, 0, 1]
+    assert set(controller.contacts) == {"left_foot", "right_foot", "left_hand", "right_hand"}
+    assert controller.holds["right_hand"].env_surface == "rung_6"
+    assert controller.posture_task.stiffness == controller.params.tasks.posture.stiffness  # restored
+
+
+def test_an_impact_while_a_limb_travels_is_reported_and_the_transfer_goes_on(ladder):
+    """impact.brace_states: a hand in flight is not held mid-air; the impact is reported and the
+    transfer completes (measured in the simulator: braced, a 5 kg ball on a moving hand ended in
+    a fall; unbraced, the climb completed)."""
     from controller_node.impact import Impact
 
     robot, env, stance, q, transition = ladder
@@ -316,39 +358,28 @@ def test_an_impact_mid_transfer_braces_then_the_transfer_resumes_and_completes(l
     controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
     controller.set_plan(plan_of(robot, env, stance, [transition]))
     T_target = robot.T_world_surface("right_hand", transition.path[-1])
-    loop.contact_plane = (T_target[:3, 3] - 0.015 * T_target[:3, 2], T_target[:3, 2])  # found 1.5 cm early
+    loop.contact_plane = (T_target[:3, 3] - 0.015 * T_target[:3, 2], T_target[:3, 2])
     _run_until_state(loop, "transfer", 600)
-    for _ in range(40):
-        loop.step()
-    controller._on_impact(Impact(controller.time, "ft:left_foot", 900.0, 400.0))
-    assert controller.fsm.state == "brace"
+    controller._on_impact(Impact(controller.time, "joint:20", 20.0, 12.0))
+    assert controller.fsm.state == "transfer"
+    (hit,) = controller.events_of("impact_detected")
+    assert not hit.values["braced"] and hit.values["state"] == "transfer"
     states, out = _run_until_settled(loop, 2400)
-    assert states == ["brace", "transfer", "close_gripper", "load", "hold"], states
-    (started,) = controller.events_of("brace_started")
-    assert started.values["interrupted"] == "transfer"
-    assert started.values["contacts"] == ["left_foot", "left_hand", "right_foot"]
-    (ended,) = controller.events_of("brace_ended")
-    assert ended.values["duration"] >= controller.params.impact.brace_time_s - 1e-9
-    assert max(ended.values["displacement"].values()) < 0.005  # the kinematic robot held still
-    assert controller.events_of("brace_resumed") and not controller.events_of("contact_lost")
-    assert [e.values["index"] for e in controller.events_of("transition_started")] == [0, 0]
-    assert set(controller.contacts) == {"left_foot", "right_foot", "left_hand", "right_hand"}
-    assert controller.holds["right_hand"].env_surface == "rung_6"
-    assert controller.posture_task.stiffness == controller.params.tasks.posture.stiffness  # restored
+    assert states[-3:] == ["close_gripper", "load", "hold"] and "brace" not in states, states
 
 
 def test_a_contact_moved_during_the_brace_is_lost_and_the_fsm_asks_for_a_replan(ladder):
-    """The same brace, but the left foot's contact point is found 5 cm from where it was at the
-    impact (knocked off its rung): it leaves the contact set and the FSM holds in replan_needed
-    (reason contact_lost)."""
+    """The brace of a CoM shift, but the left foot's contact point is found 5 cm from where it was
+    at the impact (knocked off its rung): it leaves the contact set and the FSM holds in
+    replan_needed (reason contact_lost)."""
     from controller_node.impact import Impact
 
     robot, env, stance, q, transition = ladder
     controller = Controller(robot, load_controller_params(**{"collision.enabled": False}), env)
     loop = KinematicLoop(controller, q)
     controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
-    controller.set_plan(plan_of(robot, env, stance, [transition]))
-    _run_until_state(loop, "unload", 200)
+    controller.set_plan(plan_of(robot, env, stance, [_com_hold(stance, q), transition]))
+    _run_until_state(loop, "move_com", 200)
     controller._on_impact(Impact(controller.time, "joint:3", 20.0, 12.0))
     assert controller.fsm.state == "brace"
     controller.brace.anchors["left_foot"] = controller.brace.anchors["left_foot"] + np.array([0.0, 0.0, 0.05])
@@ -356,9 +387,7 @@ def test_a_contact_moved_during_the_brace_is_lost_and_the_fsm_asks_for_a_replan(
     assert states[-1] == "replan_needed" and controller.replan_reason == "contact_lost"
     (lost,) = controller.events_of("contact_lost")
     assert lost.values["limb"] == "left_foot" and lost.values["moved"] > 0.045
-    assert "left_foot" not in controller.contacts
-    # the release under way when the blow came was cancelled: the right hand holds at full share
-    assert "right_hand" in controller.contacts and controller.contacts["right_hand"].scale == 1.0
+    assert set(controller.contacts) == {"right_foot", "left_hand", "right_hand"}
     (event,) = controller.events_of("replan_needed")
     assert event.values["reason"] == "contact_lost"
 

@@ -353,7 +353,7 @@ class Controller:
         if result is None:  # the hold QP fails too: relaxed QP (no torque / joint limits), then
             fallback = True  # the equality-only KKT solve; torques saturated below. Bracing: the
             # joint PD around the configuration at the impact instead (measured on 7 kg balls:
-            # the relaxed solve's saturated torques for the whole brace threw the robot off)
+            # the relaxed solve's saturated torques threw the robot off in two cases of three)
             for relaxed in ((self.wb.solve_relaxed, self.wb.solve_equalities) if self.brace is None else ()):
                 try:
                     candidate = relaxed(contacts, self.active_tasks)
@@ -423,9 +423,13 @@ class Controller:
         state = self.fsm.state
         if state in ("brace", "failure") or self.state is None:
             return
+        brace = state in self.params.impact.brace_states
         self.emit("impact_detected", source=hit.source, value=round(hit.value, 3),
-                  threshold=round(hit.threshold, 3), state=state)
-        self.fsm.fire(self, "impact")
+                  threshold=round(hit.threshold, 3), state=state, braced=brace)
+        if brace:
+            self.fsm.fire(self, "impact")
+        else:  # a limb on its way: the transition goes on (its guarded approach finds the contact)
+            self.impact.mute_until(self.time + self.params.impact.cooldown_s)
 
     def begin_brace(self) -> None:
         """Hold every contact at full load, grasps at the whole grip strength, the posture task

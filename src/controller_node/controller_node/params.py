@@ -192,6 +192,12 @@ class ImpactParams:
     joint_velocity_jump: float = param(12.0, unit="rad/s", min=0.0,
                                        description="an impact: a joint's velocity changed this much more in one "
                                                    "control period than the last QP's acceleration explains (0: off)")
+    brace_states: tuple[str, ...] = param(
+        ("move_com", "idle", "hold", "replan_needed"), unit="-",
+        description="FSM states an impact braces from (every limb on its hold); in the others (a limb being "
+                    "released, in flight or placed) it is reported and the transition goes on. Measured: a "
+                    "5 kg ball on a climb with a hand in flight succeeded unbraced and fell braced (the hand "
+                    "held mid-air, the QP infeasible)")
     brace_time_s: float = param(0.5, unit="s", min=0.0, description="least time in the brace state")
     brace_max_s: float = param(2.0, unit="s", min=0.0,
                                description="longest wait in the brace state for the joints to settle")
