@@ -58,3 +58,4 @@ def test_the_journal_resumes_and_the_outputs_say_what_was_survived(tmp_path):
         table = list(csv.DictReader(stream))
     assert len(table) == len(todo) and set(table[0]) == set(campaign.CSV_FIELDS)
     assert (tmp_path / "out" / "success.png").stat().st_size > 1000
+    assert (tmp_path / "out" / "balls.png").stat().st_size > 1000  # the largest ball per phase

@@ -214,6 +214,7 @@ def write_outputs(rows: list[dict], out_dir: pathlib.Path) -> dict:
             w.writerow(row)
     figures = survived(rows)
     _plot(rows, out_dir)
+    _plot_balls(figures, out_dir)
     return {"csv": str(csv_path), **figures}
 
 
@@ -265,6 +266,35 @@ def _plot(rows: list[dict], out_dir: pathlib.Path) -> None:
     fig.suptitle("G1, default ladder, 2-step climb: success against the perturbation")
     fig.tight_layout()
     fig.savefig(out_dir / "success.png", dpi=110)
+    plt.close(fig)
+
+
+#: the ladder paper's ball (DRC-Hubo, ~50 kg) and the same ball scaled to G1's ~35 kg [kg]
+PAPER_BALL_KG, SCALED_BALL_KG = 10.0, 7.0
+
+
+def _plot_balls(figures: dict, out_dir: pathlib.Path) -> None:
+    """balls.png: the largest ball survived per phase of the climb (every lighter one survived
+    too), against the paper's 10 kg and its scaling to G1. Nothing when no ball case ran."""
+    phases = [f for f in FAMILIES if f.startswith("ball_") and f"{f}_kg" in figures]
+    if not phases:
+        return
+    from .plots import _pyplot
+
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.0, 3.6))
+    values = [figures[f"{f}_kg"] or 0.0 for f in phases]
+    ax.bar([f[len("ball_"):].replace("_", " ") for f in phases], values, color="tab:blue")
+    for k, v in enumerate(values):
+        ax.text(k, v + 0.2, f"{v:g} kg" if v else "none", ha="center")
+    ax.axhline(PAPER_BALL_KG, color="tab:red", ls="--", label=f"paper: {PAPER_BALL_KG:g} kg (DRC-Hubo)")
+    ax.axhline(SCALED_BALL_KG, color="tab:orange", ls=":", label=f"scaled to G1: {SCALED_BALL_KG:g} kg")
+    ax.set_ylabel(f"largest ball survived [kg] at {BALL_SPEED:g} m/s")
+    ax.set_ylim(0.0, max(PAPER_BALL_KG, *values) + 2.0)
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_title("G1, default ladder: the largest ball survived per phase")
+    fig.tight_layout()
+    fig.savefig(out_dir / "balls.png", dpi=110)
     plt.close(fig)
 
 

@@ -16,7 +16,9 @@ Two adapters implement the ports: in process (climb_coordinator.climb: planner l
 InProcessRunner, judge.py against the backend) and over ROS (climb_coordinator.coordinator_node:
 plan/request -> ... -> whole_body_plan, controller/state, sim/contacts). The decisions are here, ONE
 code path for both: request checks, when to replan (``plan_cycles`` at a hold, ``replan_needed``
-from the measured state, bounded), how a run ends and the summary.
+from the measured state, bounded; a controller ``failure`` waited on for
+``failure_recovery_s`` in case the controller recovers into ``replan_needed``), the scenario's
+drops triggered by a transition (``Executor.throw``), how a run ends and the summary.
 """
 from __future__ import annotations
 
@@ -187,7 +189,7 @@ class ExecStatus:
     fault: str = ""  # why the run stopped otherwise: "cancelled", "dead node: controller ...", ...
     cancelled: bool = False
     qp_failures: int = 0
-    replan_reason: str = ""  # replan_needed: contact_offset | no_contact (controller FSM)
+    replan_reason: str = ""  # replan_needed: contact_offset | no_contact | contact_lost | qp_failure (controller FSM)
     #: contact_offset: (surface, world translation [m]) of the surface the last placement found
     #: off the plan (where it is minus where the plan had it)
     surface_offset: tuple[str, tuple[float, float, float]] | None = None
