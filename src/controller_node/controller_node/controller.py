@@ -432,8 +432,10 @@ class Controller:
             self.impact.mute_until(self.time + self.params.impact.cooldown_s)
 
     def begin_brace(self) -> None:
-        """Hold every contact at full load, grasps at the whole grip strength, the posture task
-        stiffened toward the configuration now (fsm.BraceState)."""
+        """Hold every contact at full load (a release cancelled; grasps allowed
+        ``impact.grip_force_fraction`` of the grip strength, their grippers closed), the posture
+        task's target the configuration now (stiffness scaled by ``impact.posture_stiffness_scale``),
+        the joint PD's target too while the QP is infeasible (fsm.BraceState)."""
         interrupted = self.fsm.history[-1][1] if self.fsm.history else ""
         oMf = self.wb.data.oMf
         brace = Brace(self.time, interrupted, {limb: contact_point(oMf, c) for limb, c in self.contacts.items()},
