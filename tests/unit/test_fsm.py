@@ -424,3 +424,34 @@ def test_a_qp_failure_that_clears_ends_in_replan_needed_not_in_failure(ladder):
     assert not controller.fallback_active
     # and the next plan is taken from there
     controller.set_plan(plan_of(robot, env, stance, []))
+
+
+def test_a_single_contact_lost_in_a_brace_is_put_back_by_the_transition_that_placed_it(ladder):
+    """impact.replace_lost: the right hand, placed on rung 6 by transition 0, is found 5 cm from
+    where it was when a blow came during the CoM shift that followed: the FSM runs transition 0's
+    placement again (guarded, from where the hand is), then the interrupted CoM shift, and the
+    plan ends holding with the hand on rung 6."""
+    from controller_node.impact import Impact
+
+    robot, env, stance, q, transition = ladder
+    controller = Controller(robot, load_controller_params(**{"collision.enabled": False}), env)
+    loop = KinematicLoop(controller, q)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    after = _com_hold(transition.target_stance, transition.path[-1])
+    controller.set_plan(plan_of(robot, env, stance, [transition, after]))
+    T_target = robot.T_world_surface("right_hand", transition.path[-1])
+    loop.contact_plane = (T_target[:3, 3] - 0.015 * T_target[:3, 2], T_target[:3, 2])
+    _run_until_state(loop, "move_com", 3000)
+    controller._on_impact(Impact(controller.time, "ft:right_hand", 900.0, 400.0))
+    controller.brace.anchors["right_hand"] = controller.brace.anchors["right_hand"] + np.array([0.0, 0.0, 0.05])
+    states, out = _run_until_settled(loop, 4000)
+    assert states[0] == "brace" and states[-1] == "hold", states
+    assert states[1:] == ["transfer", "close_gripper", "load", "move_com", "hold"], states
+    (started,) = controller.events_of("replace_started")
+    assert started.values == {"limb": "right_hand", "surface": "rung_6", "transition": 0}
+    (done,) = controller.events_of("replace_done")
+    assert done.values["transition"] == 1  # the interrupted CoM shift runs next, then the plan ends
+    assert [e.values["index"] for e in controller.events_of("transition_started")] == [0, 1, 1]
+    assert not controller.events_of("replan_needed")
+    assert set(controller.contacts) == {"left_foot", "right_foot", "left_hand", "right_hand"}
+    assert controller.holds["right_hand"].env_surface == "rung_6"

@@ -191,6 +191,8 @@ class Controller:
         self.dampers_released = 0  # ticks solved only after releasing dampers within the security distance
         self._failing_since: float | None = None  # [s] first tick of the current run of infeasible QPs
         self.brace: Brace | None = None  # the brace under way (fsm.BraceState), None outside it
+        #: the plan index to run again once a contact lost in a brace is put back (replace_lost)
+        self._replacing: int | None = None
         self._solved_since: float | None = None  # [s] first tick of the current run of solved QPs
         self._released_pairs: list[tuple[str, str]] = []
         self.fallback_active = False
@@ -241,6 +243,7 @@ class Controller:
         self.guard_off.clear()
         self.ft.update(self.wb.data.oMf, state.ft)
         self.brace = None
+        self._replacing = None
         self.impact = ImpactMonitor(self.params.impact, self.params.control_period_s)
         self.impact.mute_until(state.time + self.params.impact.startup_s)  # the filters start; the feet settle
         self.fsm.begin(self)
@@ -254,6 +257,7 @@ class Controller:
                               f"{', '.join(PLAN_READY_STATES)} (hold first: controller/hold)")
         self.plan = plan
         self.plan_pending = True
+        self._replacing = None
         self.transition_index = -1
         self.transition = None
         self.replan_needed = False  # idle / hold / replan_needed raise `plan` on their next run
@@ -277,6 +281,7 @@ class Controller:
         limb = self.moving_limb
         self.plan = None
         self.plan_pending = False
+        self._replacing = None
         self.fsm.fire(self, "hold")  # the state left tears down (stiffness, a foot's unload, ...)
         self.contact_set.restore(contacts, holds)  # the contact set stays what it was
         self.contact_set.cancel(("release",))
@@ -490,9 +495,33 @@ class Controller:
             if moved > self.params.impact.contact_lost_distance:
                 lost.append(limb)
         for limb in lost:
+            brace.lost_holds[limb] = self.holds[limb]
             self.remove_contact(limb)
             self.emit("contact_lost", limb=limb, moved=brace.displacement[limb])
         return lost
+
+    def replace_lost(self, lost: list[str]) -> bool:
+        """One contact lost: make the plan's transition that last placed that limb on that surface
+        the one to run (fsm: ``replace -> transfer``), without moving the plan's index; the
+        interrupted transition runs again once it is placed (:meth:`finish_transition`). False (a
+        replan instead) with several contacts lost, no plan, or no such transition."""
+        if not self.params.impact.replace_lost or len(lost) != 1 or self.plan is None or self.brace is None:
+            return False
+        limb = lost[0]
+        surface = self.brace.lost_holds[limb].env_surface
+        for k in range(min(self.transition_index, len(self.plan.transitions) - 1), -1, -1):
+            t = self.plan.transitions[k]
+            if t.moving_limb != limb:
+                continue
+            hold = t.target_stance.hold(limb)
+            if hold is None or hold.env_surface != surface:
+                return False  # the limb's last move went elsewhere
+            self._replacing = self.transition_index
+            self.transition, self.moving_limb, self.target_surface = t, limb, surface
+            self.moving_kind = limb_kind(limb, hold)
+            self.emit("replace_started", limb=limb, surface=surface, transition=k)
+            return True
+        return False
 
     def resume_after_brace(self) -> None:
         """The interrupted transition goes on from where the robot is: ``select`` picks it again
@@ -785,6 +814,10 @@ class Controller:
 
     def finish_transition(self) -> None:
         self._finished = True
+        if self._replacing is not None:  # a lost contact put back: the interrupted transition runs again
+            self._finished = False
+            self.emit("replace_done", limb=self.moving_limb, transition=self._replacing)
+            self._replacing = None
         if self.moving_limb:
             self.set_guard(self.moving_limb, self.target_surface, True)
 

@@ -168,6 +168,7 @@ class Context(Protocol):
     def brace_settled(self) -> bool: ...
     def lost_contacts(self) -> list[str]: ...
     def resume_after_brace(self) -> None: ...
+    def replace_lost(self, lost: list[str]) -> bool: ...
     def failure_recovered(self) -> bool: ...
     def leave_failure(self) -> None: ...
     def emit(self, kind: str, **values: Any) -> None: ...
@@ -406,10 +407,12 @@ class BraceState(State):
     infeasible answered with the relaxed solve instead of a failure. Once ``impact.brace_time_s``
     has passed and the joints have settled (or ``impact.brace_max_s``): a contact that moved more
     than ``impact.contact_lost_distance`` is lost (``contact_lost``: hold and ask for a replan);
-    otherwise the interrupted transition resumes from where the robot is (``resume``)."""
+    otherwise the interrupted transition resumes from where the robot is (``resume``). A single
+    lost contact is put back first (``replace``: the plan's transition that placed it runs again,
+    guarded, then the interrupted one; ``impact.replace_lost``)."""
 
     name = "brace"
-    events = ("resume", "contact_lost")
+    events = ("resume", "replace", "contact_lost")
 
     def start(self, ctx: Context) -> None:
         ctx.begin_brace()
@@ -421,6 +424,8 @@ class BraceState(State):
             return None
         lost = ctx.lost_contacts()
         if lost:
+            if ctx.replace_lost(lost):  # put it back first (the transition that placed it, again)
+                return "replace"
             ctx.replan_reason = "contact_lost"
             return "contact_lost"
         ctx.resume_after_brace()

@@ -216,6 +216,10 @@ class ImpactParams:
     contact_lost_distance: float = param(0.03, unit="m", min=0.0,
                                          description="after a brace, an active contact whose contact surface moved "
                                                      "this far from where it was made is lost (replan)")
+    replace_lost: bool = param(True, unit="-", description=(
+        "a single contact lost in a brace is put back before anything else: the plan's transition that "
+        "last placed that limb on that surface runs again (blended from where the robot is, guarded), "
+        "then the interrupted transition; false: replan_needed at once"))
     cooldown_s: float = param(0.5, unit="s", min=0.0,
                               description="no new impact is detected this long after a brace ends")
     startup_s: float = param(0.5, unit="s", min=0.0,

@@ -25,6 +25,7 @@ class Brace:
     posture_stiffness: float  # [1/s^2] restored at the end
     force_limits: dict[str, float] = field(default_factory=dict)  # grasp limb -> force limit [N] restored
     displacement: dict[str, float] = field(default_factory=dict)  # limb -> [m] at the check
+    lost_holds: dict = field(default_factory=dict)  # limb -> the Hold it lost
 
 
 def contact_point(oMf, contact) -> np.ndarray:
