@@ -2,7 +2,7 @@
 climb_coordinator.graph as scripts/climb.py does), lock-step, G1.
 
 One graph per climb (a class-scoped fixture; the graph stops when its class is done):
-- 3 rungs in QP mode through the `climb` action, with a one-period actuation latency (the bridge's
+- 2 rungs in QP mode through the `climb` action, with a one-period actuation latency (the bridge's
   lockstep.command_delay_ticks = 1 and the request's command_delay_ticks = 1: the physics of a tick
   runs while the controller computes the next, as on hardware, and the lock-step runs ~2x faster on
   2 cores); bad requests refused at once before it, a second request refused while it runs;
@@ -285,7 +285,7 @@ class TestQpClimbThroughTheAction:
             c = g.client
             refusals = {case: c.climb_service(**kw) for case, (kw, _) in BAD_REQUESTS.items()}
             t0 = time.monotonic()
-            handle = c.send_goal(rungs=3, controller_mode="qp", scenario="default", robot="g1",
+            handle = c.send_goal(rungs=2, controller_mode="qp", scenario="default", robot="g1",
                                  command_delay_ticks=1)
             c.wait_for(c.executing_since(1.0, t0), 900.0, "the controller executing the plan", running_since=t0)
             busy = c.climb_service(rungs=1)
@@ -306,11 +306,11 @@ class TestQpClimbThroughTheAction:
         assert not res.accepted and "busy" in res.error, res.error
         assert seconds < 20.0
 
-    def test_three_rungs_qp(self, run):
+    def test_two_rungs_qp(self, run):
         r, s, c = run["result"], run["summary"], run["client"]
-        _check_success(s, 3, c)
+        _check_success(s, 2, c)
         # the typed result agrees with the summary
-        assert r.success and not r.cancelled and r.rungs_reached == 3 and r.rungs_requested == 3
+        assert r.success and not r.cancelled and r.rungs_reached == 2 and r.rungs_requested == 2
         assert r.mode == "qp" == s["mode"] and r.fell is False and r.replans == 0
         assert s["command_delay_ticks"] == 1
         assert r.n_stances == s["n_stances"] > 20 and r.sim_time_s == pytest.approx(s["sim_time_s"])
