@@ -232,10 +232,7 @@ def test_a_state_that_cannot_start_leaves_the_fsm_holding(ladder, monkeypatch):
     did under fuzzing) is reported to the caller once, and the FSM holds the active contacts
     instead of running the half-started state on the next ticks."""
     robot, env, stance, q, transition = ladder
-    controller = Controller(robot, load_controller_params(**{"collision.enabled": False}), env)
-    loop = KinematicLoop(controller, q)
-    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
-    controller.set_plan(plan_of(robot, env, stance, [transition]))
+    controller, loop = _started(ladder, [transition])
 
     def broken(*args, **kwargs):
         raise ValueError("cannot follow this path")
@@ -296,6 +293,17 @@ def test_a_hand_freed_for_good_leaves_its_rung_without_a_guard_or_a_search(ladde
     assert controller.transition_index >= 0 and out.status.fsm_state == "hold"
 
 
+def _started(ladder, transitions, **overrides):
+    """A controller (dampers off, ``overrides`` on the params) on the 4-contact ladder stance with a
+    plan of ``transitions``, and its kinematic loop."""
+    robot, env, stance, q, _ = ladder
+    controller = Controller(robot, load_controller_params(**{"collision.enabled": False, **overrides}), env)
+    loop = KinematicLoop(controller, q)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    controller.set_plan(plan_of(robot, env, stance, transitions))
+    return controller, loop
+
+
 def _run_until_state(loop: KinematicLoop, state: str, ticks: int):
     for _ in range(ticks):
         out = loop.step()
@@ -318,10 +326,7 @@ def test_an_impact_in_a_com_shift_braces_then_the_plan_resumes_and_completes(lad
     from controller_node.impact import Impact
 
     robot, env, stance, q, transition = ladder
-    controller = Controller(robot, load_controller_params(**{"collision.enabled": False}), env)
-    loop = KinematicLoop(controller, q)
-    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
-    controller.set_plan(plan_of(robot, env, stance, [_com_hold(stance, q), transition]))
+    controller, loop = _started(ladder, [_com_hold(stance, q), transition])
     T_target = robot.T_world_surface("right_hand", transition.path[-1])
     loop.contact_plane = (T_target[:3, 3] - 0.015 * T_target[:3, 2], T_target[:3, 2])  # found 1.5 cm early
     _run_until_state(loop, "move_com", 200)
@@ -353,10 +358,7 @@ def test_an_impact_while_a_limb_travels_is_reported_and_the_transfer_goes_on(lad
     from controller_node.impact import Impact
 
     robot, env, stance, q, transition = ladder
-    controller = Controller(robot, load_controller_params(**{"collision.enabled": False}), env)
-    loop = KinematicLoop(controller, q)
-    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
-    controller.set_plan(plan_of(robot, env, stance, [transition]))
+    controller, loop = _started(ladder, [transition])
     T_target = robot.T_world_surface("right_hand", transition.path[-1])
     loop.contact_plane = (T_target[:3, 3] - 0.015 * T_target[:3, 2], T_target[:3, 2])
     _run_until_state(loop, "transfer", 600)
@@ -375,10 +377,7 @@ def test_a_contact_moved_during_the_brace_is_lost_and_the_fsm_asks_for_a_replan(
     from controller_node.impact import Impact
 
     robot, env, stance, q, transition = ladder
-    controller = Controller(robot, load_controller_params(**{"collision.enabled": False}), env)
-    loop = KinematicLoop(controller, q)
-    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
-    controller.set_plan(plan_of(robot, env, stance, [_com_hold(stance, q), transition]))
+    controller, loop = _started(ladder, [_com_hold(stance, q), transition])
     _run_until_state(loop, "move_com", 200)
     controller._on_impact(Impact(controller.time, "joint:3", 20.0, 12.0))
     assert controller.fsm.state == "brace"
@@ -399,11 +398,8 @@ def test_a_qp_failure_that_clears_ends_in_replan_needed_not_in_failure(ladder):
     from controller_node.qp import QpFailure
 
     robot, env, stance, q, transition = ladder
-    params = load_controller_params(**{"collision.enabled": False, "qp.max_saved_failures": 0})
-    controller = Controller(robot, params, env)
-    loop = KinematicLoop(controller, q)
-    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
-    controller.set_plan(plan_of(robot, env, stance, [transition]))
+    controller, loop = _started(ladder, [transition], **{"qp.max_saved_failures": 0})
+    params = controller.params
     _run_until_state(loop, "transfer", 600)
     real, broken_until = controller.wb.solve, controller.time + 0.4
 
