@@ -10,7 +10,7 @@ kinematics) and reports the events.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Iterable
 
 import numpy as np
@@ -121,6 +121,23 @@ class ContactSet:
                 remaining = 1.0 - f
                 contact.scale = remaining if not contact.bilateral else 1.0
                 contact.ramp_cap = ramp.cap0 * remaining
+
+    def shift(self, limb: str, in_frame: np.ndarray, in_world: np.ndarray, friction_margin: float,
+              generators_per_point: int, normal: np.ndarray | None = None) -> None:
+        """Move a unilateral contact's points (and its hold's) by ``in_frame`` in the limb frame /
+        ``in_world``, and give every point the unit ``normal`` (world) when one is given: the contact
+        found elsewhere under the limb than planned; its ramp goes on."""
+        c, hold = self.active[limb], self.holds[limb]
+        normals = c.normals_in_world if normal is None else np.tile(normal, (len(c.normals_in_world), 1))
+        # a new object: the QP's workspace caches each contact's reference point by identity
+        c = replace(c, points_in_frame=c.points_in_frame + in_frame, reference_in_frame=c.reference_in_frame + in_frame,
+                    normals_in_world=normals)
+        c.setup_generators(friction_margin, generators_per_point)
+        self.active[limb] = c
+        points = tuple(type(p)(np.asarray(p.position, float) + in_world, p.normal if normal is None else normal)
+                       for p in hold.points)
+        self.holds[limb] = Hold(hold.limb, hold.robot_surface, hold.env_surface, points, hold.friction,
+                                hold.bilateral, hold.grip_force_limit)
 
     def restore(self, contacts: dict[str, ActiveContact], holds: dict[str, Hold]) -> None:
         """Contacts of an earlier snapshot that are gone come back (a plan abandoned mid-release)."""

@@ -37,6 +37,7 @@ from .estimator import RobotState
 from .fsm import Fsm, FsmTable, limb_kind, load_fsm_table
 from .ft_monitor import FtMonitor, ft_sensor_frames
 from .impact import ImpactMonitor
+from .line_contact import LineContactLocator, LineEstimate
 from .params import ControllerParams
 from .qp import QpFailure, save_problem
 from .recovery import Brace, contact_point
@@ -139,6 +140,9 @@ class Controller:
                             [(limb, spec.ft_sensor) for limb, spec in self.limbs.items()], params.guarded,
                             params.control_period_s)
         self.impact = ImpactMonitor(params.impact, params.control_period_s)
+        self.line_locator = LineContactLocator(
+            robot.model, {limb: (spec.ft_sensor, self.ft.frames[spec.ft_sensor]) for limb, spec in self.limbs.items()
+                          if spec.ft_sensor in self.ft.frames}, params.line_contact)
         gains = PwmGainArrays.from_robot_config(robot.config, self.joint_names)
         scale = params.compliance.gain_scale
         self.compliance = ComplianceLaw(PwmGainArrays(gains.kp * scale, gains.kd * scale),
@@ -312,6 +316,9 @@ class Controller:
         self.grippers_out, self._queued_grippers = self._queued_grippers, []
         self.wb.update(state.q, state.v)
         self.ft.update(self.wb.data.oMf, state.ft)
+        if self.line_locator.pending:
+            for estimate in self.line_locator.update(self.time, self.wb.data.oMf, state.ft):
+                self._move_contact_line(estimate)
         hit = self.impact.update(self.time, self.ft, state.v[6:],
                                  self._qdd_held[6:] if self._qdd_held is not None else None)
         if hit is not None:
@@ -673,7 +680,29 @@ class Controller:
                                     generators_per_point=c.generators_per_point)
         return contact
 
+    def _locate_line(self, limb: str, hold: Hold) -> None:
+        """A sole put on a round rung: find where its line is from the F/T while it engages."""
+        c = self.contacts.get(limb)
+        if not self.params.line_contact.enabled or c is None or not self._is_line_hold(hold):
+            return
+        self.line_locator.start(limb, self.limb_frame_ids[limb], c.points_in_frame, c.normals_in_world.mean(axis=0),
+                                self.wb.data.oMf)
+
+    def _move_contact_line(self, estimate: LineEstimate) -> None:
+        """Move a line contact to where the F/T located it, its normals the sole's now (event
+        ``contact_line_located``)."""
+        limb = estimate.limb
+        hold = self.holds.get(limb)
+        if hold is None or limb not in self.contacts:
+            return
+        self.emit("contact_line_located", limb=limb, surface=hold.env_surface, shift=estimate.shift,
+                  total=estimate.total, samples=estimate.samples, residual=estimate.residual)
+        shift_world = self.wb.data.oMf[self.limb_frame_ids[limb]].rotation @ estimate.shift_in_frame
+        self.contact_set.shift(limb, estimate.shift_in_frame, shift_world, self.params.contacts.friction_margin,
+                               self.params.contacts.generators_per_point, normal=estimate.normal_world)
+
     def begin_release(self, limb: str) -> None:
+        self.line_locator.cancel(limb)
         if self.contact_set.begin_release(limb, self.time, self.params.contacts.release_ramp_s):
             self.emit("release_started", limb=limb)
 
@@ -681,6 +710,7 @@ class Controller:
         return self.contact_set.release_done(limb, self.time)
 
     def remove_contact(self, limb: str) -> None:
+        self.line_locator.cancel(limb)
         if self.contact_set.remove(limb):
             self.emit("contact_removed", limb=limb)
 
@@ -689,6 +719,7 @@ class Controller:
         self._measure_placement_offset(limb)
         hold = self._hold_at_actual_pose(limb)
         self._activate(limb, hold, engage=True)
+        self._locate_line(limb, hold)
         self.set_guard(limb, hold.env_surface, True)
 
     def _measure_placement_offset(self, limb: str) -> None:

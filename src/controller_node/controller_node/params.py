@@ -57,7 +57,9 @@ class QpParams:
 class ContactParams:
     friction_margin: float = param(0.8, unit="-", min=0.05, max=1.0,
                                    description="the QP's friction cones use margin * mu")
-    generators_per_point: int = param(4, unit="-", min=3, description="edges of the linearised friction cone")
+    generators_per_point: int = param(4, unit="-", min=3, description=(
+        "edges of the linearised friction cone (a multiple of 4 contains the planner's pyramid and single-tangent "
+        "forces up to mu f_n: constraints.friction_generators)"))
     min_normal_force: float = param(1.0, unit="N", min=0.0,
                                     description="minimum normal force per point of an established unilateral contact")
     unilateral_force_limit: float = param(800.0, unit="N", min=1.0,
@@ -69,6 +71,23 @@ class ContactParams:
     engage_ramp_s: float = param(0.2, unit="s", min=0.0, description="force ramp up after a contact is made")
     released_force_threshold: float = param(8.0, unit="N", min=0.0,
                                             description="a contact counts as unloaded below this force")
+
+
+@dataclass(frozen=True)
+class LineContactParams:
+    enabled: bool = param(True, unit="-", description=(
+        "locate a sole's line on a round rung from the ankle F/T while the contact engages and move the "
+        "contact there (a rung off its planned place along the sole: line_contact.py)"))
+    locate_force: float = param(20.0, unit="N", min=1.0,
+                                description="readings count once the contact's normal force exceeds this")
+    samples: int = param(3, unit="-", min=1, description="readings fitted (least squares) per estimate")
+    track_s: float = param(0.5, unit="s", min=0.0,
+                           description="estimates go on this long after the first counted reading (a foot "
+                                       "that rolled on the rung moves its line under the sole)")
+    max_shift: float = param(0.08, unit="m", min=0.0,
+                             description="the located line is clipped to this distance from the planned one")
+    min_shift: float = param(0.003, unit="m", min=0.0,
+                             description="an estimate closer than this to the line in use leaves the contact as it is")
 
 
 def _task_gains(name: str, weight: float, stiffness: float, orientation_weight: float = 1.0) -> type:
@@ -289,6 +308,7 @@ class ControllerParams:
                            description="base state source (sim/base_truth in simulation)")
     qp: QpParams = group(QpParams, "whole-body QP")
     contacts: ContactParams = group(ContactParams, "contact model and force ramps")
+    line_contact: LineContactParams = group(LineContactParams, "a sole's line on a round rung located from F/T")
     tasks: TaskParams = group(TaskParams, "task weights and stiffnesses")
     collision: CollisionParams = group(CollisionParams, "velocity-damper collision avoidance (eq. 6-8)")
     guarded: GuardedParams = group(GuardedParams, "guarded motion of the add-contact state")
