@@ -11,6 +11,9 @@ on rung 3, the right foot slipping). Now the first foot on rung 2 finds it off t
 early / late beyond guarded.replan_offset), loads it, holds, and the climb is replanned in a model
 with rung 2 where the foot found it.
 
+Rung 3 2 cm deeper (dx, the issue's case) is a 3-rung climb: the feet locate the rung's line
+under the sole from the ankle F/T (controller_node.line_contact), no replan.
+
 The nominal climb is executed through the graph (tests/ros/test_graph_climb.py: 3 rungs in QP
 mode, 2 rungs in compliance mode, judged from topics); in process the same 2-step climb runs here,
 perturbed, and in test_climb_variants.py (a rung up and back down)."""
@@ -84,5 +87,50 @@ def test_climb_planned_a_cycle_at_a_time_with_rung_2_three_centimetres_low_repla
         # default ladder; measured 0.442 at dz = -3 cm)
         base = result.log.arrays()["base"]
         assert base[-1, 2] - base[0, 2] > 2 * 0.25 + dz - 0.06
+    finally:
+        result.close()
+
+
+def test_climb_of_three_rungs_with_rung_3_two_centimetres_deeper_locates_each_foot_on_it_and_completes(tmp_path):
+    """The issue's rung 3 at +2 cm along dx (the ladder base frame's x, away from the robot): the
+    feet's guarded descent stops at the planned height, so the approach cannot see the error, but
+    the rung's top line is 2 cm further along the sole than planned. Each foot put on rung 3
+    locates its line from the ankle F/T while the contact engages (line_contact.py) and the QP
+    holds the foot on the line it found. Measured before: the left foot rolled over the rung
+    (0.5 rad within 0.15 s of loading) and the robot fell; rung 2 at +2 cm the same."""
+    import numpy as np
+    import yaml
+
+    from climb_coordinator.climb import ClimbRequest, run_climb
+    from climb_coordinator.settings import load_climb_settings
+    from climb_core.ros_env import project_root
+
+    rungs, dx = 3, 0.02
+    spec = yaml.safe_load((project_root() / "config" / "ladders" / "default_perturbed.yaml").read_text())
+    spec["perturbation"] = {"rung_offsets": [{"rung": 3, "dx": dx, "dz": 0.0}], "rails_dy": 0.0, "drops": []}
+    settings = load_climb_settings()
+    result = run_climb(ClimbRequest(ladder=spec, robot="g1", rungs=rungs, mode="qp", out_dir=tmp_path, seed=0), settings)
+    try:
+        s = result.summary
+        feet, loads = check_run(result, settings, "qp")  # no fall, no QP failure, cones held, the bag
+        assert s["success"], s["failure_reason"]
+        assert feet == {"left_foot": rungs, "right_foot": rungs}, feet
+        for foot in ("left_foot", "right_foot"):
+            assert_standing_on(result.backend, foot, rungs)  # the simulator's (moved) rung 3
+        assert loads["left_foot"].normal_force + loads["right_foot"].normal_force > 150.0  # [N]
+        c = result.controller
+        located = [e.values for e in c.events_of("contact_line_located")]
+        # nothing to locate on the rungs where they were planned: every estimate is on rung 3
+        assert {v["surface"] for v in located} == {"rung_3"}, located
+        T_rung = result.backend.surface_frame("rung_3")
+        axis = T_rung[:3, 0]
+        for foot in ("left_foot", "right_foot"):
+            total = [v["total"] for v in located if v["limb"] == foot][-1]
+            assert total == pytest.approx(dx, abs=0.006), (foot, total)
+            # the controller's contact line is over the simulator's rung axis (the plan's was 2 cm off)
+            centre = c.holds[foot].positions.mean(axis=0)
+            d = centre - T_rung[:3, 3]
+            d -= (d @ axis) * axis
+            assert np.hypot(d[0], d[1]) < 0.006, (foot, d)
     finally:
         result.close()

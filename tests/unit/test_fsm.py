@@ -332,7 +332,7 @@ def test_an_impact_in_a_com_shift_braces_then_the_plan_resumes_and_completes(lad
     _run_until_state(loop, "move_com", 200)
     for _ in range(100):
         loop.step()
-    controller._on_impact(Impact(controller.time, "ft:left_foot", 900.0, 400.0))
+    controller.recovery.on_impact(Impact(controller.time, "ft:left_foot", 900.0, 400.0))
     assert controller.fsm.state == "brace"
     states, out = _run_until_settled(loop, 3000)
     assert states[:2] == ["brace", "move_com"] and states[-1] == "hold", states
@@ -362,7 +362,7 @@ def test_an_impact_while_a_limb_travels_is_reported_and_the_transfer_goes_on(lad
     T_target = robot.T_world_surface("right_hand", transition.path[-1])
     loop.contact_plane = (T_target[:3, 3] - 0.015 * T_target[:3, 2], T_target[:3, 2])
     _run_until_state(loop, "transfer", 600)
-    controller._on_impact(Impact(controller.time, "joint:20", 20.0, 12.0))
+    controller.recovery.on_impact(Impact(controller.time, "joint:20", 20.0, 12.0))
     assert controller.fsm.state == "transfer"
     (hit,) = controller.events_of("impact_detected")
     assert not hit.values["braced"] and hit.values["state"] == "transfer"
@@ -379,9 +379,9 @@ def test_a_contact_moved_during_the_brace_is_lost_and_the_fsm_asks_for_a_replan(
     robot, env, stance, q, transition = ladder
     controller, loop = _started(ladder, [_com_hold(stance, q), transition])
     _run_until_state(loop, "move_com", 200)
-    controller._on_impact(Impact(controller.time, "joint:3", 20.0, 12.0))
+    controller.recovery.on_impact(Impact(controller.time, "joint:3", 20.0, 12.0))
     assert controller.fsm.state == "brace"
-    controller.brace.anchors["left_foot"] = controller.brace.anchors["left_foot"] + np.array([0.0, 0.0, 0.05])
+    controller.recovery.brace.anchors["left_foot"] = controller.recovery.brace.anchors["left_foot"] + np.array([0.0, 0.0, 0.05])
     states, out = _run_until_settled(loop, 1000)
     assert states[-1] == "replan_needed" and controller.replan_reason == "contact_lost"
     (lost,) = controller.events_of("contact_lost")
@@ -438,8 +438,8 @@ def test_a_single_contact_lost_in_a_brace_is_put_back_by_the_transition_that_pla
     T_target = robot.T_world_surface("right_hand", transition.path[-1])
     loop.contact_plane = (T_target[:3, 3] - 0.015 * T_target[:3, 2], T_target[:3, 2])
     _run_until_state(loop, "move_com", 3000)
-    controller._on_impact(Impact(controller.time, "ft:right_hand", 900.0, 400.0))
-    controller.brace.anchors["right_hand"] = controller.brace.anchors["right_hand"] + np.array([0.0, 0.0, 0.05])
+    controller.recovery.on_impact(Impact(controller.time, "ft:right_hand", 900.0, 400.0))
+    controller.recovery.brace.anchors["right_hand"] = controller.recovery.brace.anchors["right_hand"] + np.array([0.0, 0.0, 0.05])
     states, out = _run_until_settled(loop, 4000)
     assert states[0] == "brace" and states[-1] == "hold", states
     assert states[1:] == ["transfer", "close_gripper", "load", "move_com", "hold"], states

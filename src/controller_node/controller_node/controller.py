@@ -1,6 +1,10 @@
 """The controller: one ``tick(state) -> ControlOutput`` per control period, ROS-free.
 
-It owns the active contact set, the tasks, the FSM and the whole-body QP:
+It owns the tasks, the FSM and the whole-body QP, and composes the parts the FSM talks to: the
+active contact set (contact_set.ContactSet), the F/T monitor (ft_monitor.FtMonitor), impact
+detection (impact.ImpactMonitor), the line-contact locator (line_contact.LineContactLocator), and
+failure handling and recovery (recovery.Recovery: the brace, lost contacts, QP failures, the
+fallback). A tick:
 
 1. Pinocchio terms for the measured state (:class:`WholeBodyQP.update`);
 2. F/T forces rotated to the world and low-pass filtered (guarded motion);
@@ -27,8 +31,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from climb_core.contact import FEET, HANDS, Hold, Stance, Transition, WholeBodyPlan
-from climb_core.ros_env import project_root
+from climb_core.contact import HANDS, Hold, Stance, Transition, WholeBodyPlan
 
 from .compliance import ComplianceLaw, MotorArrays, PwmGainArrays
 from .constraints import ActiveContact, CollisionAvoidance, contact_from_hold
@@ -39,8 +42,8 @@ from .ft_monitor import FtMonitor, ft_sensor_frames
 from .impact import ImpactMonitor
 from .line_contact import LineContactLocator, LineEstimate
 from .params import ControllerParams
-from .qp import QpFailure, save_problem
-from .recovery import Brace, contact_point
+from .qp import QpFailure
+from .recovery import Brace, Recovery
 from .reference import PathReference
 from .tasks import BaseOrientationTask, ComTask, FrameTask, PostureTask, Task
 from .wholebody import WholeBodyQP, WholeBodyResult
@@ -190,18 +193,11 @@ class Controller:
         self.grippers_out: list[GripperRequest] = []
         self._queued_grippers: list[GripperRequest] = []  # requested between two ticks (hold_plan)
         self.events: list[ControllerEvent] = []
-        self.qp_failures = 0
-        self.saved_failures: list[pathlib.Path] = []
         self.dampers_released = 0  # ticks solved only after releasing dampers within the security distance
-        self._failing_since: float | None = None  # [s] first tick of the current run of infeasible QPs
-        self.brace: Brace | None = None  # the brace under way (fsm.BraceState), None outside it
         #: the plan index to run again once a contact lost in a brace is put back (replace_lost)
         self._replacing: int | None = None
-        self._solved_since: float | None = None  # [s] first tick of the current run of solved QPs
         self._released_pairs: list[tuple[str, str]] = []
-        self.fallback_active = False
-        self._q_fallback: np.ndarray | None = None
-        self._tau_ff = np.zeros(self.na)
+        self.recovery = Recovery(self)  # impacts, the brace, QP failures and the fallback
         self.last_result: WholeBodyResult | None = None
         self._qdd_held: np.ndarray | None = None  # [m/s^2, rad/s^2] last solved qdd (latency prediction)
         self.state: RobotState | None = None
@@ -242,11 +238,10 @@ class Controller:
         self.replan_needed = False
         self.replan_reason = ""
         self.placement_offset = None
-        self.fallback_active = False
+        self.recovery.reset()
         self._qdd_held = None
         self.guard_off.clear()
         self.ft.update(self.wb.data.oMf, state.ft)
-        self.brace = None
         self._replacing = None
         self.impact = ImpactMonitor(self.params.impact, self.params.control_period_s)
         self.impact.mute_until(state.time + self.params.impact.startup_s)  # the filters start; the feet settle
@@ -290,7 +285,7 @@ class Controller:
         self.contact_set.restore(contacts, holds)  # the contact set stays what it was
         self.contact_set.cancel(("release",))
         if before == "open_gripper" and limb in HANDS and limb in self.contacts:
-            self._queued_grippers.append(GripperRequest(limb, "close", 0.0, self.time))
+            self.queue_gripper(limb, "close")
         self.transition = None
         self.transition_index = -1
         self.moving_limb = ""
@@ -303,7 +298,7 @@ class Controller:
 
     def reset_failure(self) -> bool:
         """Leave the failure state (external `reset` event)."""
-        self.fallback_active = False
+        self.recovery.fallback_active = False
         return self.fsm.fire(self, "reset")
 
     # ------------------------------------------------------------------ tick
@@ -322,7 +317,7 @@ class Controller:
         hit = self.impact.update(self.time, self.ft, state.v[6:],
                                  self._qdd_held[6:] if self._qdd_held is not None else None)
         if hit is not None:
-            self._on_impact(hit)
+            self.recovery.on_impact(hit)
         self.fsm.step(self)
         self.contact_set.advance(self.time)
         contacts = self.contact_set.ordered()
@@ -339,34 +334,20 @@ class Controller:
             qp_status, solve_ms = QP_OK, result.solution.solve_time * 1e3
         except QpFailure as failure:
             qp_status = QP_FAILED
-            self._on_failure(failure)
-            if self._failing_since is None:
-                self._failing_since = self.time
-            in_grace = self.time - self._failing_since < self.params.qp.failure_grace_s - 1e-9
-            if self.brace is not None:  # a blow can leave no feasible QP for a while: bracing rides it out
-                in_grace = in_grace or self.time - self.brace.since < self.params.impact.brace_max_s
-            if self.fsm.state != "failure" and not in_grace:
-                self.fsm.fire(self, "qp_failure")
-            if not in_grace or self.fsm.state == "failure":
+            if self.recovery.qp_failed(failure):
                 # one retry with the hold tasks (and contact set) the failure state just set
                 contacts = self.contact_set.ordered()
                 try:
                     result = self.wb.solve(contacts, self.active_tasks, self._disabled_pairs())
                 except QpFailure:
                     result = None
-        else:
-            self._failing_since = None
-        if result is not None and qp_status == QP_OK:
-            if self._solved_since is None:
-                self._solved_since = self.time
-        else:
-            self._solved_since = None
+        self.recovery.qp_solved(result is not None and qp_status == QP_OK)
         fallback = False
         if result is None:  # the hold QP fails too: relaxed QP (no torque / joint limits), then
             fallback = True  # the equality-only KKT solve; torques saturated below. Bracing: the
             # joint PD around the configuration at the impact instead (measured on 7 kg balls:
             # the relaxed solve's saturated torques threw the robot off in two cases of three)
-            for relaxed in ((self.wb.solve_relaxed, self.wb.solve_equalities) if self.brace is None else ()):
+            for relaxed in ((self.wb.solve_relaxed, self.wb.solve_equalities) if self.recovery.brace is None else ()):
                 try:
                     candidate = relaxed(contacts, self.active_tasks)
                 except (QpFailure, np.linalg.LinAlgError):
@@ -377,14 +358,14 @@ class Controller:
         self._qdd_held = result.qdd if result is not None and not fallback else None
         if result is not None and not fallback:
             tau = result.tau
-            self._tau_ff = tau.copy()
+            self.recovery.tau_ff = tau.copy()
             self.last_result = result
             for limb, c in result.contacts.items():
                 self.contact_set.last_loads[limb] = c.wrench_in_world
         elif result is not None:
             tau = result.tau
         else:
-            tau = self._fallback_torque(state)
+            tau = self.recovery.fallback_torque(state)
         tau = np.minimum(np.maximum(tau, self._neg_effort_limits), self.effort_limits)  # == np.clip, cheaper
         if self.params.mode == "compliance":
             values = self._pwm(state, tau)
@@ -427,179 +408,6 @@ class Controller:
             self._released_pairs = blocked
             self.emit("dampers_released", pairs=[f"{a}|{b}" for a, b in blocked])
         return result
-
-    # ------------------------------------------------------------------ failure handling
-    def _on_impact(self, hit) -> None:
-        """An impact seen on the F/T or the joints (impact.py): brace, unless in failure (the
-        fallback already holds) or bracing already."""
-        state = self.fsm.state
-        if state in ("brace", "failure") or self.state is None:
-            return
-        brace = state in self.params.impact.brace_states
-        self.emit("impact_detected", source=hit.source, value=round(hit.value, 3),
-                  threshold=round(hit.threshold, 3), state=state, braced=brace)
-        if brace:
-            self.fsm.fire(self, "impact")
-        else:  # a limb on its way: the transition goes on (its guarded approach finds the contact)
-            self.impact.mute_until(self.time + self.params.impact.cooldown_s)
-
-    def begin_brace(self) -> None:
-        """Hold every contact at full load (a release cancelled; grasps allowed
-        ``impact.grip_force_fraction`` of the grip strength, their grippers closed), the posture
-        task's target the configuration now (stiffness scaled by ``impact.posture_stiffness_scale``),
-        the joint PD's target too while the QP is infeasible (fsm.BraceState)."""
-        interrupted = self.fsm.history[-1][1] if self.fsm.history else ""
-        oMf = self.wb.data.oMf
-        brace = Brace(self.time, interrupted, {limb: contact_point(oMf, c) for limb, c in self.contacts.items()},
-                      self.posture_task.stiffness)
-        self.contact_set.cancel(("release",))
-        for limb, contact in self.contacts.items():
-            if contact.bilateral:
-                brace.force_limits[limb] = contact.force_limit
-                contact.force_limit = (contact.force_limit * self.params.impact.grip_force_fraction
-                                       / max(self.params.contacts.grip_force_fraction, 1e-6))
-                self._queued_grippers.append(GripperRequest(limb, "close", 0.0, self.time))
-        self.hold_here()
-        self._q_fallback = self.state.q.copy()  # the joint PD's target while the QP is infeasible
-        self.posture_task.stiffness = brace.posture_stiffness * self.params.impact.posture_stiffness_scale
-        self.brace = brace
-        self.emit("brace_started", interrupted=interrupted, transition=self.transition_index,
-                  contacts=sorted(self.contacts))
-
-    def end_brace(self) -> None:
-        brace = self.brace
-        if brace is None:
-            return
-        self.posture_task.stiffness = brace.posture_stiffness
-        for limb, limit in brace.force_limits.items():
-            if limb in self.contacts:
-                self.contacts[limb].force_limit = limit
-        self.impact.mute_until(self.time + self.params.impact.cooldown_s)
-        if not self.fallback_active:
-            self._q_fallback = None
-        self.emit("brace_ended", duration=round(self.time - brace.since, 3), displacement=dict(brace.displacement))
-        self.brace = None
-
-    def brace_settled(self) -> bool:
-        """Every joint slower than ``impact.settle_joint_speed``."""
-        return bool(np.max(np.abs(self.state.v[6:])) < self.params.impact.settle_joint_speed)
-
-    def lost_contacts(self) -> list[str]:
-        """Active contacts whose reference point moved more than ``impact.contact_lost_distance``
-        since the impact (a foot knocked off its rung, a grasp slid along it): they leave the
-        contact set (the QP must not push on them) and are returned."""
-        brace = self.brace
-        if brace is None:
-            return []
-        oMf = self.wb.data.oMf
-        lost = []
-        for limb, anchor in brace.anchors.items():
-            contact = self.contacts.get(limb)
-            if contact is None:
-                continue
-            moved = float(np.linalg.norm(contact_point(oMf, contact) - anchor))
-            brace.displacement[limb] = round(moved, 4)
-            if moved > self.params.impact.contact_lost_distance:
-                lost.append(limb)
-        for limb in lost:
-            brace.lost_holds[limb] = self.holds[limb]
-            self.remove_contact(limb)
-            self.emit("contact_lost", limb=limb, moved=brace.displacement[limb])
-        return lost
-
-    def replace_lost(self, lost: list[str]) -> bool:
-        """One contact lost: make the plan's transition that last placed that limb on that surface
-        the one to run (fsm: ``replace -> transfer``), without moving the plan's index; the
-        interrupted transition runs again once it is placed (:meth:`finish_transition`). False (a
-        replan instead) with several contacts lost, no plan, or no such transition."""
-        if not self.params.impact.replace_lost or len(lost) != 1 or self.plan is None or self.brace is None:
-            return False
-        limb = lost[0]
-        surface = self.brace.lost_holds[limb].env_surface
-        for k in range(min(self.transition_index, len(self.plan.transitions) - 1), -1, -1):
-            t = self.plan.transitions[k]
-            if t.moving_limb != limb:
-                continue
-            hold = t.target_stance.hold(limb)
-            if hold is None or hold.env_surface != surface:
-                return False  # the limb's last move went elsewhere
-            self._replacing = self.transition_index
-            self.transition, self.moving_limb, self.target_surface = t, limb, surface
-            self.moving_kind = limb_kind(limb, hold)
-            self.emit("replace_started", limb=limb, surface=surface, transition=k)
-            return True
-        return False
-
-    def resume_after_brace(self) -> None:
-        """The interrupted transition goes on from where the robot is: ``select`` picks it again
-        (not finished) and its state blends from the measured configuration; a placement whose
-        contact was being loaded counts as made."""
-        brace = self.brace
-        if brace is not None and brace.interrupted == "load" and self.moving_limb in self.contacts:
-            self.finish_transition()
-        self.emit("brace_resumed", interrupted=brace.interrupted if brace else "", transition=self.transition_index)
-
-    def _on_failure(self, failure: QpFailure) -> None:
-        self.qp_failures += 1
-        p = self.params.qp
-        if len(self.saved_failures) < p.max_saved_failures:
-            folder = pathlib.Path(p.failure_dir)
-            if not folder.is_absolute():
-                folder = project_root() / folder
-            path = folder / f"qp_failure_{int(time.time() * 1e3)}_{self.qp_failures:04d}.npz"
-            failure.saved_path = save_problem(
-                failure.problem, path, solver=failure.solver, status=failure.status, time=self.time,
-                fsm_state=self.fsm.state, contacts=",".join(self.contacts),
-                dampers=";".join(f"{d.name}:d={d.distance:.4f}:rate={d.distance_rate:.3f}:lower={d.lower:.2f}"
-                                 for d in self.wb.last_dampers()))
-            self.saved_failures.append(path)
-        self.emit("qp_failure", status=failure.status, solver=failure.solver,
-                  saved=str(failure.saved_path or ""))
-
-    def enter_fallback(self) -> None:
-        """Failure state: hold the configuration at failure (QP hold tasks, PD if that fails too)."""
-        self.fallback_active = True
-        self._q_fallback = self.state.q.copy()
-        if self.last_result is None:  # never solved: static equilibrium feed-forward instead
-            self._tau_ff = self._static_torques()
-        self.active_tasks = [self.com_task, self.posture_task, self.base_task]
-        self.hold_here()
-        # a contact still engaging carries little load and is the likely culprit: drop it
-        for limb in [limb for limb, ramp in self.contact_set.ramps.items() if ramp.kind == "engage"]:
-            self.remove_contact(limb)
-        self.contact_set.cancel(("release", "engage"))
-
-    def failure_recovered(self) -> bool:
-        """In failure: the QP (hold tasks, the contacts kept) has solved for ``qp.recover_after_s``
-        without a break and the joints have settled."""
-        after = self.params.qp.recover_after_s
-        return (after > 0.0 and self._solved_since is not None and self.time - self._solved_since >= after - 1e-9
-                and self.brace_settled())
-
-    def leave_failure(self) -> None:
-        self.fallback_active = False
-        self._q_fallback = None
-        self.emit("failure_recovered", contacts=sorted(self.contacts))
-
-    def _static_torques(self) -> np.ndarray:
-        """Joint torques [N m] holding the current configuration still on the active contacts:
-        the least-norm contact wrenches balancing gravity on the base rows (no friction or torque
-        limits: a feed-forward for the fallback PD, not a QP)."""
-        g = pin.computeGeneralizedGravity(self.model, self.ref_data, self.state.q)
-        contacts = self.contact_set.ordered()
-        if not contacts:
-            return g[6:].copy()
-        J = np.vstack([self.wb._contact_kinematics(c)[0] for c in contacts])  # (6k, nv)
-        wrenches = np.linalg.pinv(J[:, :6].T) @ g[:6]
-        return g[6:] - J[:, 6:].T @ wrenches
-
-    def _fallback_torque(self, state: RobotState) -> np.ndarray:
-        f = self.params.fallback
-        q_hold = self._q_fallback if self._q_fallback is not None else state.q
-        inertia = np.diag(self.wb.data.M)[6:]  # [kg m^2] joint-space inertia of each joint
-        kp = inertia * f.natural_frequency ** 2
-        kd = inertia * 2.0 * f.damping_ratio * f.natural_frequency
-        return self._tau_ff + kp * (q_hold[7:] - state.q[7:]) - kd * state.v[6:]
 
     # ------------------------------------------------------------------ compliance
     def _pwm(self, state: RobotState, tau: np.ndarray) -> np.ndarray:
@@ -810,7 +618,29 @@ class Controller:
         elif surface:
             self.guard_off.add((limb, surface))
 
+    # ------------------------------------------------------------------ recovery (Recovery)
+    @property
+    def brace(self) -> Brace | None:
+        """The brace under way (recovery.Brace), None outside it."""
+        return self.recovery.brace
+
+    @property
+    def qp_failures(self) -> int:
+        return self.recovery.qp_failures
+
+    @property
+    def saved_failures(self) -> list[pathlib.Path]:
+        return self.recovery.saved_failures
+
+    @property
+    def fallback_active(self) -> bool:
+        return self.recovery.fallback_active
+
     # ------------------------------------------------------------------ grippers
+    def queue_gripper(self, hand: str, command: str, position: float = 0.0) -> None:
+        """A gripper request sent with the next tick's output."""
+        self._queued_grippers.append(GripperRequest(hand, command, position, self.time))
+
     def gripper(self, hand: str, command: str, position: float = 0.0) -> None:
         if hand not in HANDS:
             return

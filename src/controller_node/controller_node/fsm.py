@@ -140,6 +140,7 @@ class Context(Protocol):
     replan_needed: bool
     replan_reason: str  # set by the state that raises the event leading to replan_needed
     contact_body_tasks: dict  # limb -> FrameTask
+    recovery: "RecoveryContext"  # the brace and failure states' part (controller_node.recovery.Recovery)
 
     def next_transition(self) -> Transition | None: ...
     def finish_transition(self) -> None: ...
@@ -162,6 +163,12 @@ class Context(Protocol):
     def freeze_limb(self) -> None: ...
     def creep(self, distance: float) -> None: ...
     def set_guard(self, limb: str, surface: str, on: bool) -> None: ...
+    def emit(self, kind: str, **values: Any) -> None: ...
+
+
+class RecoveryContext(Protocol):
+    """What the brace and failure states use (implemented by :class:`controller_node.recovery.Recovery`)."""
+
     def enter_fallback(self) -> None: ...
     def begin_brace(self) -> None: ...
     def end_brace(self) -> None: ...
@@ -171,7 +178,6 @@ class Context(Protocol):
     def replace_lost(self, lost: list[str]) -> bool: ...
     def failure_recovered(self) -> bool: ...
     def leave_failure(self) -> None: ...
-    def emit(self, kind: str, **values: Any) -> None: ...
 
 
 class State:
@@ -415,24 +421,24 @@ class BraceState(State):
     events = ("resume", "replace", "contact_lost")
 
     def start(self, ctx: Context) -> None:
-        ctx.begin_brace()
+        ctx.recovery.begin_brace()
 
     def run(self, ctx: Context) -> str | None:
         p = ctx.params.impact
         t = self.elapsed(ctx)
-        if t < p.brace_time_s or (t < p.brace_max_s and not ctx.brace_settled()):
+        if t < p.brace_time_s or (t < p.brace_max_s and not ctx.recovery.brace_settled()):
             return None
-        lost = ctx.lost_contacts()
+        lost = ctx.recovery.lost_contacts()
         if lost:
-            if ctx.replace_lost(lost):  # put it back first (the transition that placed it, again)
+            if ctx.recovery.replace_lost(lost):  # put it back first (the transition that placed it, again)
                 return "replace"
             ctx.replan_reason = "contact_lost"
             return "contact_lost"
-        ctx.resume_after_brace()
+        ctx.recovery.resume_after_brace()
         return "resume"
 
     def teardown(self, ctx: Context) -> None:
-        ctx.end_brace()
+        ctx.recovery.end_brace()
 
 
 class FailureState(State):
@@ -445,16 +451,16 @@ class FailureState(State):
     events = ("recovered",)
 
     def start(self, ctx: Context) -> None:
-        ctx.enter_fallback()
+        ctx.recovery.enter_fallback()
 
     def run(self, ctx: Context) -> str | None:
-        if ctx.failure_recovered():
+        if ctx.recovery.failure_recovered():
             ctx.replan_reason = "qp_failure"
             return "recovered"
         return None
 
     def teardown(self, ctx: Context) -> None:
-        ctx.leave_failure()
+        ctx.recovery.leave_failure()
 
 
 STATE_CLASSES: dict[str, type[State]] = {cls.name: cls for cls in (
