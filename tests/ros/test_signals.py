@@ -46,7 +46,7 @@ from node_execs import EXECUTABLES, Executable, executable_status, sockets
 
 pytestmark = pytest.mark.ros
 
-RUNS = 12  # signals per executable (half SIGINT, half SIGTERM; 3 of them once it runs): 108 in all
+RUNS = 8  # signals per executable (half SIGINT, half SIGTERM; 2 of them once it runs): 72 in all
 DELAY_S = (0.3, 3.0)  # [s] random delay before the signal
 EXIT_TIMEOUT_S = 30.0  # [s] a signalled process must be gone by then (busy 2-core machine)
 READY_TIMEOUT_S = 90.0  # [s] a process's DDS participant exists

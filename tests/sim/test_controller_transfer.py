@@ -42,7 +42,7 @@ def _hand_touches_other_rungs(runner, limb):
     hits = []
 
     def check(sim_state, output):
-        if output.status.fsm_state in ("transfer",) and not runner.controller.in_approach():
+        if output.status.fsm_state in ("transfer",) and not runner.controller.path.in_approach():
             if np.linalg.norm(sim_state.contact_forces[limb]) > 1.0:
                 hits.append(sim_state.time)
 

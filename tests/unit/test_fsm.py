@@ -91,7 +91,7 @@ class KinematicLoop:
         c = self.c
         out = {s: np.zeros(6) for s in c.robot.config.ft_sensors}
         near = c.fsm.state in ("close_gripper", "load", "hold") or (c.fsm.state in ("transfer", "search")
-                                                                   and c.in_approach())
+                                                                   and c.path.in_approach())
         if self.contact_plane is None or c.moving_limb != "right_hand" or not near:
             return out  # (the plane is infinite: only the approach meets it, not the hand lifting off)
         point, direction = self.contact_plane
@@ -191,7 +191,7 @@ def test_a_contact_found_off_the_plan_is_loaded_then_held_for_a_replan(ladder, o
     limb, surface, moved, distance = controller.placement_offset
     assert (limb, surface) == ("right_hand", "rung_6")
     assert distance == pytest.approx(offset, abs=0.008)  # [m] signed, along the approach
-    assert moved == pytest.approx(distance * controller._approach["right_hand"], abs=1e-9)
+    assert moved == pytest.approx(distance * controller.path.approach["right_hand"], abs=1e-9)
     (event,) = controller.events_of("replan_needed")
     assert event.values["reason"] == "contact_offset"
     # a new plan is taken from there (the session replans from the transition's target stance)
@@ -237,7 +237,7 @@ def test_a_state_that_cannot_start_leaves_the_fsm_holding(ladder, monkeypatch):
     def broken(*args, **kwargs):
         raise ValueError("cannot follow this path")
 
-    monkeypatch.setattr(controller, "start_path", broken)
+    monkeypatch.setattr(controller.path, "start", broken)
     with pytest.raises(ValueError):
         for _ in range(1400):
             loop.step()

@@ -45,6 +45,7 @@ from .params import ControllerParams
 from .qp import QpFailure
 from .recovery import Brace, Recovery
 from .reference import PathReference
+from .tracking import PathTracker
 from .tasks import BaseOrientationTask, ComTask, FrameTask, PostureTask, Task
 from .wholebody import WholeBodyQP, WholeBodyResult
 
@@ -174,12 +175,7 @@ class Controller:
         self.moving_limb = ""
         self.moving_kind = ""  # fsm.limb_kind of the moving limb and its hold (hand / palm / foot)
         self.target_surface = ""
-        self.reference: PathReference | None = None
-        self._path_start = 0.0
-        self._blend: dict[str, Any] = {}
-        self._creep_base: pin.SE3 | None = None
-        self._creep_dir = np.zeros(3)
-        self._creep_posture = np.zeros(self.na)
+        self.path = PathTracker(self)  # the transition's path -> task targets, the guarded search
         self.guard_off: set[tuple[str, str]] = set()
         self._disabled_key: tuple | None = None
         self._disabled_cache: frozenset[tuple[str, str]] = frozenset()
@@ -188,7 +184,6 @@ class Controller:
         #: the last placement's surface offset: (limb, surface, world translation [m] of the surface
         #: from where the plan had it, along the approach; signed distance [m], < 0 early)
         self.placement_offset: tuple[str, str, np.ndarray, float] | None = None
-        self._approach: dict[str, np.ndarray] = {}  # limb -> unit approach direction (world)
         # outputs / bookkeeping
         self.grippers_out: list[GripperRequest] = []
         self._queued_grippers: list[GripperRequest] = []  # requested between two ticks (hold_plan)
@@ -440,17 +435,17 @@ class Controller:
     def ft_force_change(self, limb: str) -> float:
         """Contact force [N] the limb's F/T has seen since the tare, against its approach
         direction when one is known (FtMonitor.change)."""
-        return self.ft.change(limb, self._approach.get(limb))
+        return self.ft.change(limb, self.path.approach.get(limb))
 
     def search_stalled(self, limb: str) -> bool:
         """Search: the limb lags its creeping target by ``guarded.stall_lag`` along the approach
         (something holds it back) and the slow-filtered F/T confirms a push (FtMonitor)."""
-        g = self.params.guarded
-        if g.stall_lag <= 0 or limb != self.moving_limb or self._creep_dir is None or not np.any(self._creep_dir):
+        g, creep = self.params.guarded, self.path.creep_dir
+        if g.stall_lag <= 0 or limb != self.moving_limb or creep is None or not np.any(creep):
             return False
         task = self.contact_body_tasks[limb]
-        lag = float(self._creep_dir @ (task.T_world_target.translation - task.current(self.wb.view).translation))
-        return lag > g.stall_lag and self.ft.confirms_stall(limb, self._approach.get(limb))
+        lag = float(creep @ (task.T_world_target.translation - task.current(self.wb.view).translation))
+        return lag > g.stall_lag and self.ft.confirms_stall(limb, self.path.approach.get(limb))
 
     # ------------------------------------------------------------------ contacts (ContactSet)
     @property
@@ -535,12 +530,12 @@ class Controller:
         surface now minus at the end of its planned path, along the approach direction (event
         ``contact_offset``; ``placement_offset``). Nothing without a path (a plan starting with
         the limb free) or an approach direction."""
-        a = self._approach.get(limb)
+        a = self.path.approach.get(limb)
         if self.reference is None or a is None or self.transition is None:
             self.placement_offset = None
             return
         planned = self.transition.target_stance.hold(limb)
-        _, T_plan = self._reference_quantities(self.reference.end, limb)
+        _, T_plan = self.path.reference_quantities(self.reference.end, limb)
         T_now = self.contact_body_tasks[limb].current(self.wb.view)
         d = float(a @ (T_now.translation - T_plan.translation))
         offset = d * a
@@ -618,6 +613,11 @@ class Controller:
         elif surface:
             self.guard_off.add((limb, surface))
 
+    @property
+    def reference(self) -> PathReference | None:
+        """The path under way (tracking.PathTracker), None when holding."""
+        return self.path.reference
+
     # ------------------------------------------------------------------ recovery (Recovery)
     @property
     def brace(self) -> Brace | None:
@@ -690,172 +690,11 @@ class Controller:
         self.posture_task.set_target(q[7:].copy())
         self.base_task.set_target(pin.Quaternion(q[3:7]).normalized().toRotationMatrix())
         self._set_contact_body(None)
-        self.reference = None
+        self.path.reference = None
 
     def _set_contact_body(self, limb: str | None) -> None:
         base = [self.com_task, self.posture_task, self.base_task]
         self.active_tasks = base + ([self.contact_body_tasks[limb]] if limb else [])
-
-    def _reference_quantities(self, q_ref: np.ndarray, limb: str) -> tuple[np.ndarray, pin.SE3 | None]:
-        com = pin.centerOfMass(self.model, self.ref_data, q_ref, False).copy()
-        if not limb:
-            return com, None
-        fid = self.limb_frame_ids[limb]
-        pin.updateFramePlacement(self.model, self.ref_data, fid)
-        M = self.ref_data.oMf[fid]
-        offset = self.limb_surface[limb][:3, 3]
-        return com, pin.SE3(M.rotation.copy(), M.translation + M.rotation @ offset)
-
-    def _reference_motion(self, q_ref: np.ndarray, v_ref: np.ndarray, limb: str
-                          ) -> tuple[np.ndarray, np.ndarray, pin.SE3 | None, np.ndarray | None]:
-        """CoM [m] and its velocity [m/s], and the limb's contact surface pose and twist (world
-        axes, at the surface point: linear [m/s], angular [rad/s]) along the reference, from one
-        kinematics pass with velocity."""
-        model, data = self.model, self.ref_data
-        com = pin.centerOfMass(model, data, q_ref, v_ref, False).copy()
-        vcom = data.vcom[0].copy()
-        if not limb:
-            return com, vcom, None, None
-        fid = self.limb_frame_ids[limb]
-        pin.updateFramePlacement(model, data, fid)
-        M = data.oMf[fid]
-        r = M.rotation @ self.limb_surface[limb][:3, 3]
-        vx, vy, vz, wx, wy, wz = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).vector.tolist()
-        rx, ry, rz = r.tolist()
-        # v + w x r at the surface point (np.cross costs ~25 us on 3-vectors; same arithmetic)
-        twist = np.array([vx + (wy * rz - wz * ry), vy + (wz * rx - wx * rz), vz + (wx * ry - wy * rx), wx, wy, wz])
-        return com, vcom, pin.SE3(M.rotation.copy(), M.translation + r), twist
-
-    def start_path(self, transition: Transition, moving_limb: str = "") -> None:
-        """Track ``transition.path`` from now; blend out today's offset from its first way-point."""
-        self.reference = PathReference(self.model, transition.times, transition.path)
-        self._path_start = self.time
-        self._path_limb = moving_limb
-        q0 = self.reference.start
-        com0, T0 = self._reference_quantities(q0, moving_limb)
-        q = self.state.q
-        blend = {
-            "com": self.wb.data.com[0] - com0,
-            "joints": q[7:] - q0[7:],
-            "base": pin.log3(pin.Quaternion(q[3:7]).normalized().toRotationMatrix()
-                             @ pin.Quaternion(q0[3:7]).normalized().toRotationMatrix().T),
-        }
-        if moving_limb:
-            task = self.contact_body_tasks[moving_limb]
-            T_now = task.current(self.wb.view)
-            blend["limb_p"] = T_now.translation - T0.translation
-            blend["limb_R"] = pin.log3(T_now.rotation @ T0.rotation.T)
-        self._blend = blend
-        self._set_contact_body(moving_limb or None)
-        if moving_limb:
-            self._approach[moving_limb] = self._approach_direction(moving_limb)
-            self._creep_dir = np.zeros(3)
-        self.track_path()
-
-    def in_approach(self, fraction: float = 0.0) -> bool:
-        """True once the path progress is ``fraction`` into its last segment (the approach)."""
-        ref = self.reference
-        if ref is None:
-            return True
-        s, _ = ref.progress(self.path_elapsed())
-        start = ref.last_segment_start
-        return s >= start + fraction * (1.0 - start)
-
-    def path_elapsed(self) -> float:
-        return self.time - self._path_start
-
-    def path_duration(self) -> float:
-        return self.reference.duration if self.reference is not None else 0.0
-
-    def track_path(self) -> bool:
-        """Set task targets from the path at the current time; True once the path is finished."""
-        ref = self.reference
-        if ref is None:
-            return True
-        t = self.path_elapsed()
-        q_ref, v_ref = ref.sample(t)
-        s, sdot = ref.progress(t)
-        w = 1.0 - s
-        limb = self._path_limb
-        com, vcom, T, twist = self._reference_motion(q_ref, v_ref, limb)
-        b = self._blend
-        self.com_task.set_target(com + w * b["com"], vcom - sdot * b["com"])
-        self.posture_task.set_target(q_ref[7:] + w * b["joints"], v_ref[6:] - sdot * b["joints"])
-        R_base = pin.exp3(w * b["base"]) @ pin.Quaternion(q_ref[3:7]).normalized().toRotationMatrix()
-        self.base_task.set_target(R_base)
-        if limb:
-            p = T.translation + w * b["limb_p"]
-            R = pin.exp3(w * b["limb_R"]) @ T.rotation
-            lin = twist[:3] - sdot * b["limb_p"]
-            T_target = pin.SE3(R, p)  # never mutated: the task's target and the creep origin share it
-            self.contact_body_tasks[limb].set_target(T_target, np.concatenate([lin, twist[3:]]))
-            self._creep_base = T_target
-            if s >= ref.last_segment_start and self.target_surface:
-                # approach: the damper between the limb and its target surface goes off
-                self.set_guard(limb, self.target_surface, False)
-        return t >= ref.duration
-
-    def freeze_limb(self) -> None:
-        """Stop the moving limb where it is (contact seen): its target = its current pose."""
-        limb = self.moving_limb
-        if not limb:
-            return
-        task = self.contact_body_tasks[limb]
-        T_now = task.current(self.wb.view)
-        task.set_target(T_now)
-        q = self.state.q
-        idx = self.limb_joint_v[limb] - 6
-        q_post = self.posture_task.q_joints.copy()
-        q_post[idx] = q[7:][idx]
-        v_post = self.posture_task.v_joints.copy()
-        v_post[:] = 0.0
-        self.posture_task.set_target(q_post, v_post)
-        com = self.com_task.position.copy()
-        self.com_task.set_target(com)
-        self.emit("limb_frozen", limb=limb, position=T_now.translation.copy())
-
-    def creep(self, distance: float) -> None:
-        """Search: move the limb target ``distance`` [m] past the planned end pose along the approach."""
-        limb = self.moving_limb
-        if not limb or self.reference is None:
-            return
-        if self._creep_dir is None or not np.any(self._creep_dir) or distance <= self.params.guarded.approach_speed * self.params.control_period_s * 1.01:
-            self._creep_dir = self._approach_direction(limb)
-            self._creep_posture = self.posture_task.q_joints.copy()
-            self._creep_origin = self._creep_base
-        T0 = self._creep_origin
-        T = pin.SE3(T0.rotation, T0.translation + distance * self._creep_dir)
-        self.contact_body_tasks[limb].set_target(T, np.concatenate([self.params.guarded.approach_speed * self._creep_dir,
-                                                                    np.zeros(3)]))
-        # joint reference for the limb follows by one damped least-squares step (compliance mode)
-        J = pin.getFrameJacobian(self.model, self.wb.data, self.limb_frame_ids[limb], pin.LOCAL_WORLD_ALIGNED)[:3]
-        idx = self.limb_joint_v[limb]
-        Jl = J[:, idx]
-        step = self.params.guarded.approach_speed * self.params.control_period_s * self._creep_dir
-        dq = Jl.T @ np.linalg.solve(Jl @ Jl.T + 1e-4 * np.eye(3), step)
-        q_post = self.posture_task.q_joints.copy()
-        q_post[idx - 6] += dq
-        self.posture_task.set_target(q_post)
-
-    def _approach_direction(self, limb: str) -> np.ndarray:
-        """Unit direction [world] of the guarded search past the planned end pose: into the target
-        surface (minus its mean normal) for a unilateral hold (a foot pushes down onto a rung even
-        when the plan's last way-points slide sideways onto it); the direction of the path's last
-        20 % for a grasp (the palm closes in on the rung along the planned approach)."""
-        hold = self.transition.target_stance.hold(limb) if self.transition is not None else None
-        if hold is not None and not hold.bilateral and len(hold.points):
-            n = np.asarray(hold.normals, float).mean(axis=0)
-            if np.linalg.norm(n) > 1e-6:
-                return -n / np.linalg.norm(n)
-        ref = self.reference
-        end_com, T_end = self._reference_quantities(ref.end, limb)
-        q_before, _ = ref.sample(0.8 * ref.duration)
-        _, T_before = self._reference_quantities(q_before, limb)
-        d = T_end.translation - T_before.translation
-        if np.linalg.norm(d) < 1e-3:
-            hold = self.transition.target_stance.hold(limb) if self.transition is not None else None
-            d = -hold.normals.mean(axis=0) if hold is not None and len(hold.points) else np.array([0.0, 0.0, -1.0])
-        return d / np.linalg.norm(d)
 
     # ------------------------------------------------------------------ events
     def emit(self, kind: str, **values: Any) -> None:

@@ -141,14 +141,12 @@ class Context(Protocol):
     replan_reason: str  # set by the state that raises the event leading to replan_needed
     contact_body_tasks: dict  # limb -> FrameTask
     recovery: "RecoveryContext"  # the brace and failure states' part (controller_node.recovery.Recovery)
+    path: "PathContext"  # the transition's path and the guarded search (controller_node.tracking.PathTracker)
 
     def next_transition(self) -> Transition | None: ...
     def finish_transition(self) -> None: ...
     def has_contact(self, limb: str) -> bool: ...
     def hold_here(self) -> None: ...
-    def start_path(self, transition: Transition, moving_limb: str = "") -> None: ...
-    def track_path(self) -> bool: ...
-    def in_approach(self, fraction: float = 0.0) -> bool: ...
     def begin_release(self, limb: str) -> None: ...
     def release_done(self, limb: str) -> bool: ...
     def remove_contact(self, limb: str) -> None: ...
@@ -160,10 +158,19 @@ class Context(Protocol):
     def ft_force_change(self, limb: str) -> float: ...
     def contact_threshold(self, limb: str) -> float: ...
     def search_stalled(self, limb: str) -> bool: ...
-    def freeze_limb(self) -> None: ...
-    def creep(self, distance: float) -> None: ...
     def set_guard(self, limb: str, surface: str, on: bool) -> None: ...
     def emit(self, kind: str, **values: Any) -> None: ...
+
+
+class PathContext(Protocol):
+    """What states use to follow a transition's path (implemented by
+    :class:`controller_node.tracking.PathTracker`)."""
+
+    def start(self, transition: Transition, moving_limb: str = "") -> None: ...
+    def track(self) -> bool: ...
+    def in_approach(self, fraction: float = 0.0) -> bool: ...
+    def freeze_limb(self) -> None: ...
+    def creep(self, distance: float) -> None: ...
 
 
 class RecoveryContext(Protocol):
@@ -247,10 +254,10 @@ class MoveComState(State):
     events = ("path_done",)
 
     def start(self, ctx: Context) -> None:
-        ctx.start_path(ctx.transition, "")
+        ctx.path.start(ctx.transition, "")
 
     def run(self, ctx: Context) -> str | None:
-        if ctx.track_path():
+        if ctx.path.track():
             ctx.finish_transition()
             return "path_done"
         return None
@@ -306,8 +313,8 @@ class TransferState(State):
         limb = ctx.moving_limb
         if ctx.has_contact(limb):  # plan starting with the limb free is fine; otherwise release now
             ctx.remove_contact(limb)
-        ctx.start_path(ctx.transition, limb)  # the damper of (limb, target surface) goes off on
-        # the last path segment (the approach), see Controller.track_path
+        ctx.path.start(ctx.transition, limb)  # the damper of (limb, target surface) goes off on
+        # the last path segment (the approach), see PathTracker.track
         if ctx.moving_kind == "palm":  # a push: fingers straight, out of the push surface's way
             ctx.gripper(limb, "open")
         elif limb in HANDS:
@@ -315,14 +322,14 @@ class TransferState(State):
         self.tared_at = None
 
     def run(self, ctx: Context) -> str | None:
-        done = ctx.track_path()
+        done = ctx.path.track()
         if moving_hold(ctx.transition) is None:  # the limb leaves its hold for good: no contact to find
             if done:
                 ctx.finish_transition()
                 return "freed"
             return None
         g = ctx.params.guarded
-        if self.tared_at is None and ctx.in_approach(g.approach_arm_fraction):
+        if self.tared_at is None and ctx.path.in_approach(g.approach_arm_fraction):
             ctx.tare_ft(ctx.moving_limb)
             self.tared_at = ctx.time
         if self.tared_at is not None:  # stiffen the approach smoothly: a blocked limb pushes harder
@@ -332,7 +339,7 @@ class TransferState(State):
             task.stiffness = k0 + ramp * (g.search_stiffness - k0)
         armed = self.tared_at is not None and ctx.time - self.tared_at >= g.settle_time_s
         if armed and ctx.ft_force_change(ctx.moving_limb) > ctx.contact_threshold(ctx.moving_limb):
-            ctx.freeze_limb()
+            ctx.path.freeze_limb()
             ctx.emit("contact_detected", limb=ctx.moving_limb, early=not done, state=self.name)
             return "contact"
         return "path_end" if done else None
@@ -360,17 +367,17 @@ class SearchState(State):
         limb = ctx.moving_limb
         by_force = ctx.ft_force_change(limb) > ctx.contact_threshold(limb)
         if by_force or ctx.search_stalled(limb):
-            ctx.freeze_limb()
+            ctx.path.freeze_limb()
             ctx.emit("contact_detected", limb=limb, early=False, state=self.name,
                      extra_travel=self.travelled, by="force" if by_force else "stall")
             return "contact"
         if self.travelled >= g.search_distance:
-            ctx.freeze_limb()
+            ctx.path.freeze_limb()
             ctx.replan_reason = "no_contact"
             return "exhausted"
         step = g.approach_speed * ctx.params.control_period_s
         self.travelled += step
-        ctx.creep(self.travelled)
+        ctx.path.creep(self.travelled)
         return None
 
 

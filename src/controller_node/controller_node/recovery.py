@@ -230,7 +230,7 @@ class Recovery:
                                  for d in c.wb.last_dampers()))
             self.saved_failures.append(path)
         c.emit("qp_failure", status=failure.status, solver=failure.solver,
-                  saved=str(failure.saved_path or ""))
+               saved=str(failure.saved_path or ""))
 
     def enter_fallback(self) -> None:
         """Failure state: hold the configuration at failure (QP hold tasks, PD if that fails too)."""
