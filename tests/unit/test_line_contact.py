@@ -51,31 +51,72 @@ def test_the_line_is_found_where_the_rung_pushes(shift, pitch):
         t += 0.005
         assert locator.update(t, oMf, {"ankle": reading(R, 0.04 + shift, force, 0.0, rng)}) == []
     estimates = []
-    for force in np.linspace(40.0, 120.0, params.samples):
+    for force in np.linspace(40.0, 120.0, 10):  # 50 ms of the engage ramp
         t += 0.005
         # 0.5 % of the ankle's 1 kN / 50 N m ranges as noise, a tangential push of 10 % of the load
         estimates += locator.update(t, oMf, {"ankle": reading(R, 0.04 + shift, force, 0.1 * force, rng, 5.0, 0.25)})
     if shift == 0.0:
         assert estimates == []  # within min_shift of the plan: the contact stays as it is
         return
-    (estimate,) = estimates
-    assert estimate.samples == params.samples
-    assert estimate.shift == pytest.approx(shift, abs=0.004) and estimate.total == estimate.shift
+    estimate = estimates[0]
+    assert estimate.samples >= params.samples
+    assert sum(e.shift for e in estimates) == pytest.approx(estimates[-1].total)
+    assert estimates[-1].total == pytest.approx(shift, abs=0.004) and estimate.total == estimate.shift
     # the shift is along the sole's forward axis, across the line (the limb frame is the sensor's)
     assert estimate.shift_in_frame == pytest.approx([estimate.shift, 0.0, 0.0], abs=1e-9)
     assert estimate.normal_world == pytest.approx([0.0, 0.0, 1.0])  # the sole's normal, as planned
-    # tracking goes on: the same line gives nothing new, a line that moved on is followed
-    for _ in range(3 * params.samples):
+    # tracking goes on: more readings of the same line move nothing
+    for _ in range(40):
         t += 0.005
         assert locator.update(t, oMf, {"ankle": reading(R, 0.04 + shift, 100.0, 0.0, rng, 5.0, 0.25)}) == []
-    later = []
-    for _ in range(params.samples):
+    assert locator.pending == ("left_foot",)  # followed while the contact lasts (track_s 0)
+    locator.cancel("left_foot")  # its release
+    assert locator.pending == ()
+
+
+@pytest.mark.parametrize("noise_percent", [0.5, 2.0])
+def test_noise_and_bias_do_not_move_a_line_that_is_where_planned(noise_percent):
+    """A foot where the plan put it, 0.5 s of readings with F/T noise of sigma noise_percent of
+    the ankle's 1 kN / 50 N m ranges and a bias of half that: the fit is only acted on when it is
+    significant, and the bias measured while the foot was in the air is taken out. (Acting on
+    every window of three readings walked the line 2 cm off in 0.5 s at 0.5 %, measured in a
+    climb.)"""
+    params = load_controller_params().line_contact
+    model, fid = model_with_a_foot()
+    R = pin.utils.rotate("y", -0.05)
+    oMf = {fid: pin.SE3(R, np.zeros(3))}
+    locator = LineContactLocator(model, {"left_foot": ("ankle", fid)}, params)
+    rng = np.random.default_rng(3)
+    sigma_f, sigma_m = 10.0 * noise_percent, 0.5 * noise_percent
+    bias = np.concatenate([rng.normal(0, 0.5 * sigma_f, 3), [0.0, 0.5 * sigma_m, 0.0]])
+    t = 0.0
+    for _ in range(60):  # 0.3 s in the air before the approach
         t += 0.005
-        later += locator.update(t, oMf, {"ankle": reading(R, 0.04 + shift + 0.01, 100.0, 0.0, rng, 5.0, 0.25)})
-    assert later and later[0].total == pytest.approx(shift + 0.01, abs=0.004)
-    t += params.track_s
-    locator.update(t, oMf, {"ankle": reading(R, 0.04, 100.0, 0.0, rng)})
-    assert locator.pending == ()  # tracked for track_s only
+        locator.observe(oMf, {"ankle": reading(R, 0.04, 0.0, 0.0, rng, sigma_f, sigma_m) + bias}, ["left_foot"])
+    locator.tare("left_foot")
+    assert locator.start("left_foot", fid, POINTS, np.array([0.0, 0.0, 1.0]), oMf)
+    moves = []
+    while t < 0.6:
+        t += 0.005
+        moves += locator.update(t, oMf, {"ankle": reading(R, 0.04, 70.0, 3.0, rng, sigma_f, sigma_m) + bias})
+    assert sum(m.shift for m in moves) == pytest.approx(0.0, abs=params.min_shift), moves
+    assert len(moves) <= 1
+
+
+def test_a_line_two_centimetres_off_is_found_within_its_tracking_time_under_two_percent_noise():
+    params = load_controller_params().line_contact
+    model, fid = model_with_a_foot()
+    R = np.eye(3)
+    oMf = {fid: pin.SE3(R, np.zeros(3))}
+    locator = LineContactLocator(model, {"left_foot": ("ankle", fid)}, params)
+    rng = np.random.default_rng(4)
+    locator.start("left_foot", fid, POINTS, np.array([0.0, 0.0, 1.0]), oMf)
+    t, moves = 0.0, []
+    while not moves:
+        t += 0.005
+        moves += locator.update(t, oMf, {"ankle": reading(R, 0.06, 100.0, 0.0, rng, 20.0, 1.0)})
+    assert t <= 0.3  # [s] (a 100 N load; at 0.5 % noise the sweep of 200 seeds: 25 ms median)
+    assert moves[0].total == pytest.approx(0.02, abs=0.008)
 
 
 def test_the_foot_weight_is_taken_out_of_the_reading():

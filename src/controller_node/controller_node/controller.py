@@ -146,7 +146,7 @@ class Controller:
         self.impact = ImpactMonitor(params.impact, params.control_period_s)
         self.line_locator = LineContactLocator(
             robot.model, {limb: (spec.ft_sensor, self.ft.frames[spec.ft_sensor]) for limb, spec in self.limbs.items()
-                          if spec.ft_sensor in self.ft.frames}, params.line_contact)
+                          if spec.ft_sensor in self.ft.frames}, params.line_contact, params.control_period_s)
         gains = PwmGainArrays.from_robot_config(robot.config, self.joint_names)
         scale = params.compliance.gain_scale
         self.compliance = ComplianceLaw(PwmGainArrays(gains.kp * scale, gains.kd * scale),
@@ -306,9 +306,13 @@ class Controller:
         self.grippers_out, self._queued_grippers = self._queued_grippers, []
         self.wb.update(state.q, state.v)
         self.ft.update(self.wb.data.oMf, state.ft)
-        if self.line_locator.pending:
-            for estimate in self.line_locator.update(self.time, self.wb.data.oMf, state.ft):
-                self._move_contact_line(estimate)
+        if self.params.line_contact.enabled:
+            # a free limb's reading is its sensor's bias; a placement on a round rung is located
+            self.line_locator.observe(self.wb.data.oMf, state.ft,
+                                      [limb for limb in self.limbs if not self.contact_set.has(limb)])
+            if self.line_locator.pending:
+                for estimate in self.line_locator.update(self.time, self.wb.data.oMf, state.ft):
+                    self._move_contact_line(estimate)
         hit = self.impact.update(self.time, self.ft, state.v[6:],
                                  self._qdd_held[6:] if self._qdd_held is not None else None)
         if hit is not None:
@@ -427,6 +431,7 @@ class Controller:
     # ------------------------------------------------------------------ F/T (FtMonitor)
     def tare_ft(self, limb: str) -> None:
         self.ft.tare(limb)
+        self.line_locator.tare(limb)
 
     def contact_threshold(self, limb: str) -> float:
         """[N] the F/T force change that means contact (FtMonitor.threshold)."""
@@ -499,7 +504,7 @@ class Controller:
         if hold is None or limb not in self.contacts:
             return
         self.emit("contact_line_located", limb=limb, surface=hold.env_surface, shift=estimate.shift,
-                  total=estimate.total, samples=estimate.samples, residual=estimate.residual)
+                  total=estimate.total, samples=estimate.samples, std=estimate.std)
         shift_world = self.wb.data.oMf[self.limb_frame_ids[limb]].rotation @ estimate.shift_in_frame
         self.contact_set.shift(limb, estimate.shift_in_frame, shift_world, self.params.contacts.friction_margin,
                                self.params.contacts.generators_per_point, normal=estimate.normal_world)

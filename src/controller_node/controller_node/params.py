@@ -80,10 +80,17 @@ class LineContactParams:
         "contact there (a rung off its planned place along the sole: line_contact.py)"))
     locate_force: float = param(20.0, unit="N", min=1.0,
                                 description="readings count once the contact's normal force exceeds this")
-    samples: int = param(3, unit="-", min=1, description="readings fitted (least squares) per estimate")
-    track_s: float = param(0.5, unit="s", min=0.0,
-                           description="estimates go on this long after the first counted reading (a foot "
-                                       "that rolled on the rung moves its line under the sole)")
+    samples: int = param(3, unit="-", min=2, description="readings counted before the first estimate")
+    significance: float = param(4.0, unit="-", min=0.0, description=(
+        "an estimate moves the line only when it differs from the line in use by this many standard "
+        "errors of the fit (and by min_shift)"))
+    track_s: float = param(0.0, unit="s", min=0.0, description=(
+        "the line is followed this long after the first counted reading; 0 = while the contact lasts (a sole "
+        "rolls on the rung as the load moves: measured, tracking for 0.5 s only left the right foot 6 mm off "
+        "the line and it rolled off rung 3 at the climb's last transition)"))
+    fit_time_constant_s: float = param(0.2, unit="s", min=0.0, description=(
+        "readings fade from the fit with this time constant (the foot loads and rolls at first); 0 = all count "
+        "alike"))
     max_shift: float = param(0.08, unit="m", min=0.0,
                              description="the located line is clipped to this distance from the planned one")
     min_shift: float = param(0.003, unit="m", min=0.0,
