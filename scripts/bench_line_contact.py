@@ -51,8 +51,8 @@ def run_case(noise_percent: float, shift: float, seeds: int, params) -> dict:
         rng = np.random.default_rng(seed)
         bias = np.concatenate([rng.normal(0, 0.5 * sigma_f, 3), rng.normal(0, 0.5 * sigma_m, 3)])
         for _ in range(60):  # 0.3 s in the air
-            locator.observe(oMf, {"ankle": reading(R, 0.04, 0.0, 0.0, rng, sigma_f, sigma_m) + bias}, ["foot"])
-        locator.tare("foot")
+            locator.observe({"ankle": reading(R, 0.04, 0.0, 0.0, rng, sigma_f, sigma_m) + bias}, ["foot"])
+        locator.tare("foot", oMf)
         locator.start("foot", fid, POINTS, np.array([0.0, 0.0, 1.0]), oMf)
         t, total, first = 0.0, 0.0, None
         while t < 0.55:

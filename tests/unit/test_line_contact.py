@@ -92,8 +92,8 @@ def test_noise_and_bias_do_not_move_a_line_that_is_where_planned(noise_percent):
     t = 0.0
     for _ in range(60):  # 0.3 s in the air before the approach
         t += 0.005
-        locator.observe(oMf, {"ankle": reading(R, 0.04, 0.0, 0.0, rng, sigma_f, sigma_m) + bias}, ["left_foot"])
-    locator.tare("left_foot")
+        locator.observe({"ankle": reading(R, 0.04, 0.0, 0.0, rng, sigma_f, sigma_m) + bias}, ["left_foot"])
+    locator.tare("left_foot", oMf)
     assert locator.start("left_foot", fid, POINTS, np.array([0.0, 0.0, 1.0]), oMf)
     moves = []
     while t < 0.6:

@@ -308,8 +308,7 @@ class Controller:
         self.ft.update(self.wb.data.oMf, state.ft)
         if self.params.line_contact.enabled:
             # a free limb's reading is its sensor's bias; a placement on a round rung is located
-            self.line_locator.observe(self.wb.data.oMf, state.ft,
-                                      [limb for limb in self.limbs if not self.contact_set.has(limb)])
+            self.line_locator.observe(state.ft, [limb for limb in self.limbs if not self.contact_set.has(limb)])
             if self.line_locator.pending:
                 for estimate in self.line_locator.update(self.time, self.wb.data.oMf, state.ft):
                     self._move_contact_line(estimate)
@@ -431,7 +430,7 @@ class Controller:
     # ------------------------------------------------------------------ F/T (FtMonitor)
     def tare_ft(self, limb: str) -> None:
         self.ft.tare(limb)
-        self.line_locator.tare(limb)
+        self.line_locator.tare(limb, self.wb.data.oMf)
 
     def contact_threshold(self, limb: str) -> float:
         """[N] the F/T force change that means contact (FtMonitor.threshold)."""

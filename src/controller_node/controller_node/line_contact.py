@@ -22,13 +22,14 @@ on when it differs from the line in use by ``min_shift`` and by ``significance``
 of the fit: noisy sensors move the line only once the readings say so (with 0.5 % F/T noise a
 window of three readings scatters by ~5 mm, and acting on each window walked a nominal foot's
 line 2 cm off in 0.5 s, measured). The bias is the free limb's reading before the contact (its
-weight known): averaged while the limb is in the air (:meth:`observe`), frozen when its approach
-begins (:meth:`tare`, with the F/T monitor's tare: a creeping foot may press on the rung for a few
+weight known): its last readings in the air (:meth:`observe`) averaged when its approach begins
+(:meth:`tare`, with the F/T monitor's tare: a creeping foot may press on the rung for a few
 hundred milliseconds before the contact is confirmed), taken out of every reading of the fit.
 """
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Iterable, Mapping
 
@@ -36,7 +37,12 @@ import numpy as np
 import pinocchio as pin
 
 GRAVITY = np.array([0.0, 0.0, -9.81])  # [m/s^2] world
-BIAS_TIME_CONSTANT_S = 0.1  # [s] the free limb's reading is averaged over about this long
+BIAS_READINGS = 60  # the free limb's last readings averaged at the tare (0.3 s at 200 Hz)
+
+
+def _cross(a, b) -> tuple[float, float, float]:
+    """a x b of two 3-sequences (np.cross costs ~10 us on 3-vectors)."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
 @dataclass
@@ -50,6 +56,12 @@ class _Pending:
     n_sensor: np.ndarray  # (3,) contact normal (toward the robot) at the start, sensor frame
     bias: np.ndarray  # (6,) the sensor's reading of nothing (free limb, weight removed) [N, N m]
     since: float | None = None  # [s] first counted reading
+    # the same vectors as Python floats (the per-tick arithmetic: numpy scalars cost ~5x more)
+    r0_f: tuple = ()
+    u_f: tuple = ()
+    d_f: tuple = ()
+    n_f: tuple = ()
+    bias_f: tuple = ()
     n: int = 0  # readings counted
     n_eff: float = 0.0  # their weight in the fit (older readings fade)
     sab: float = 0.0
@@ -73,15 +85,14 @@ class LineContactLocator:
     """Locates line contacts (soles on round rungs) from F/T, one placement at a time per limb.
 
     ``sensors``: limb -> (sensor name, sensor frame id); ``params``: the controller's
-    LineContactParams; ``period``: the control period [s] (the bias filter's step)."""
+    LineContactParams; ``period``: the control period [s] (the step of the fit's fading)."""
 
     def __init__(self, model: pin.Model, sensors: Mapping[str, tuple[str, int]], params, period: float = 0.005):
         self.params = params
         self.sensors = dict(sensors)
         self._pending: dict[str, _Pending] = {}
-        self._free: dict[str, np.ndarray] = {}  # limb -> averaged reading while free
-        self._bias: dict[str, np.ndarray] = {}  # limb -> the average frozen at the approach's tare
-        self._alpha = min(1.0, period / BIAS_TIME_CONSTANT_S)
+        self._free: dict[str, deque] = {limb: deque(maxlen=BIAS_READINGS) for limb in self.sensors}
+        self._bias: dict[str, np.ndarray] = {}  # limb -> the free readings' mean at the approach's tare
         # each reading's weight in the fit decays by this per period (fit_time_constant_s)
         self._fade = math.exp(-period / params.fit_time_constant_s) if params.fit_time_constant_s > 0 else 1.0
         # the body below each sensor (the foot): its weight is part of the reading
@@ -90,6 +101,7 @@ class LineContactLocator:
             frame = model.frames[fid]
             inertia = model.inertias[frame.parentJoint]
             self._distal[sensor] = (float(inertia.mass), frame.placement.inverse().act(inertia.lever))
+        self._distal_f = {sensor: (mass, tuple(com.tolist())) for sensor, (mass, com) in self._distal.items()}
 
     @property
     def pending(self) -> tuple[str, ...]:
@@ -104,21 +116,22 @@ class LineContactLocator:
         out[3:] -= np.cross(com, g)
         return out
 
-    def observe(self, oMf, ft: Mapping[str, np.ndarray], free: Iterable[str]) -> None:
-        """Average the readings of the ``free`` limbs (in the air, no contact): the sensor's bias."""
+    def observe(self, ft: Mapping[str, np.ndarray], free: Iterable[str]) -> None:
+        """Keep the last readings of the ``free`` limbs (in the air, no contact): the sensor's bias."""
         for limb in free:
             entry = self.sensors.get(limb)
             wrench = ft.get(entry[0]) if entry is not None else None
-            if wrench is None:
-                continue
-            reading = self._unloaded(entry[0], entry[1], oMf, wrench)
-            previous = self._free.get(limb)
-            self._free[limb] = reading if previous is None else previous + self._alpha * (reading - previous)
+            if wrench is not None:
+                self._free[limb].append(np.array(wrench[:6], dtype=float))
 
-    def tare(self, limb: str) -> None:
-        """The limb's approach begins (it is still in the air): its averaged reading is the bias."""
-        if limb in self._free:
-            self._bias[limb] = self._free[limb].copy()
+    def tare(self, limb: str, oMf) -> None:
+        """The limb's approach begins (it is still in the air): its recent readings' mean, its
+        weight at its pose now taken out, is the sensor's bias."""
+        readings = self._free.get(limb)
+        if readings:
+            sensor, fid = self.sensors[limb]
+            self._bias[limb] = self._unloaded(sensor, fid, oMf, np.mean(readings, axis=0))
+            readings.clear()
 
     def start(self, limb: str, limb_fid: int, points_in_frame: np.ndarray, normal_world: np.ndarray,
               oMf) -> bool:
@@ -139,8 +152,11 @@ class LineContactLocator:
             return False
         n = np.asarray(normal_world, float) / np.linalg.norm(normal_world)
         bias = self._bias.pop(limb, np.zeros(6))
-        self._pending[limb] = _Pending(sensor, sensor_fid, limb_fid, pts.mean(axis=0), u, d / np.linalg.norm(d),
-                                       oMf[sensor_fid].rotation.T @ n, bias)
+        job = _Pending(sensor, sensor_fid, limb_fid, pts.mean(axis=0), u, d / np.linalg.norm(d),
+                       oMf[sensor_fid].rotation.T @ n, bias)
+        job.r0_f, job.u_f, job.d_f = tuple(job.r0.tolist()), tuple(job.u.tolist()), tuple(job.d.tolist())
+        job.n_f, job.bias_f = tuple(job.n_sensor.tolist()), tuple(np.asarray(bias, float).tolist())
+        self._pending[limb] = job
         return True
 
     def cancel(self, limb: str) -> None:
@@ -157,14 +173,26 @@ class LineContactLocator:
             wrench = ft.get(job.sensor)
             if wrench is None:
                 continue
-            reading = self._unloaded(job.sensor, job.sensor_fid, oMf, wrench) - job.bias
-            force, moment = reading[:3], reading[3:]
-            if float(force @ job.n_sensor) < p.locate_force:
+            w = wrench.tolist() if isinstance(wrench, np.ndarray) else list(wrench)
+            mass, com = self._distal_f[job.sensor]
+            R = oMf[job.sensor_fid].rotation
+            k = mass * GRAVITY[2]
+            r2 = R[2].tolist()
+            g = (k * r2[0], k * r2[1], k * r2[2])  # the distal body's weight, sensor frame [N]
+            bias = job.bias_f
+            force = (w[0] - g[0] - bias[0], w[1] - g[1] - bias[1], w[2] - g[2] - bias[2])
+            c = _cross(com, g)
+            mx, my, mz = w[3] - c[0] - bias[3], w[4] - c[1] - bias[4], w[5] - c[2] - bias[5]
+            nx, ny, nz = job.n_f
+            if force[0] * nx + force[1] * ny + force[2] * nz < p.locate_force:
                 continue
             if job.since is None:
                 job.since = now
-            a = float((moment - np.cross(job.r0, force)) @ job.u)
-            b = float(np.cross(job.d, force) @ job.u)
+            rx, ry, rz = _cross(job.r0_f, force)
+            ux, uy, uz = job.u_f
+            a = (mx - rx) * ux + (my - ry) * uy + (mz - rz) * uz
+            dx, dy, dz = _cross(job.d_f, force)
+            b = dx * ux + dy * uy + dz * uz
             fade = self._fade
             job.n += 1
             job.n_eff = fade * job.n_eff + 1.0
@@ -177,7 +205,7 @@ class LineContactLocator:
             dof = max(job.n_eff - 1.0, 1.0)
             residual = max(job.saa - 2.0 * s * job.sab + s * s * job.sbb, 0.0) / dof
             std = math.sqrt(residual / job.sbb)
-            s = float(np.clip(s, -p.max_shift, p.max_shift))
+            s = min(max(s, -p.max_shift), p.max_shift)
             move = s - job.applied
             # few readings estimate their own scatter poorly: a wider bound for them (~ Student's t)
             if abs(move) < max(p.min_shift, p.significance * std * (1.0 + 4.0 / dof)):
@@ -185,5 +213,5 @@ class LineContactLocator:
             job.applied = s
             T_limb_sensor = oMf[job.limb_fid].inverse() * oMf[job.sensor_fid]
             done.append(LineEstimate(limb, move, T_limb_sensor.rotation @ (move * job.d), job.n, std,
-                                     oMf[job.sensor_fid].rotation @ job.n_sensor, s))
+                                     R @ job.n_sensor, s))
         return done
