@@ -306,16 +306,18 @@ class Controller:
         self.grippers_out, self._queued_grippers = self._queued_grippers, []
         self.wb.update(state.q, state.v)
         self.ft.update(self.wb.data.oMf, state.ft)
-        if self.params.line_contact.enabled:
-            # a free limb's reading is its sensor's bias; a placement on a round rung is located
-            self.line_locator.observe(state.ft, [limb for limb in self.limbs if not self.contact_set.has(limb)])
-            if self.line_locator.pending:
-                for estimate in self.line_locator.update(self.time, self.wb.data.oMf, state.ft):
-                    self._move_contact_line(estimate)
         hit = self.impact.update(self.time, self.ft, state.v[6:],
                                  self._qdd_held[6:] if self._qdd_held is not None else None)
         if hit is not None:
             self.recovery.on_impact(hit)
+        if self.params.line_contact.enabled:
+            # a free limb's reading is its sensor's bias; a placement on a round rung is located,
+            # not from the wrenches of a blow (its tick, a brace, the cooldown after it)
+            self.line_locator.observe(state.ft, [limb for limb in self.limbs if not self.contact_set.has(limb)])
+            if (self.line_locator.pending and hit is None and self.recovery.brace is None
+                    and not self.impact.quiet(self.time)):
+                for estimate in self.line_locator.update(self.time, self.wb.data.oMf, state.ft):
+                    self._move_contact_line(estimate)
         self.fsm.step(self)
         self.contact_set.advance(self.time)
         contacts = self.contact_set.ordered()

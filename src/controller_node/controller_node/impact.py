@@ -49,6 +49,10 @@ class ImpactMonitor:
     def mute_until(self, t: float) -> None:
         self._quiet_until = max(self._quiet_until, t)
 
+    def quiet(self, time: float) -> bool:
+        """Muted at ``time`` (start-up, a brace's or an unbraced impact's cooldown)."""
+        return time < self._quiet_until
+
     def update(self, time: float, ft: FtMonitor, v_joints: np.ndarray, qdd_joints: np.ndarray | None,
                watch_ft: bool = True) -> Impact | None:
         """One tick; the first indicator over its threshold, or None. ``qdd_joints``: the last
