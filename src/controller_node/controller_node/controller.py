@@ -490,7 +490,7 @@ class Controller:
         return contact
 
     def _locate_line(self, limb: str, hold: Hold) -> None:
-        """A sole put on a round rung: find where its line is from the F/T while it engages."""
+        """A sole put on a round rung: its line located from the F/T from now on, while it holds."""
         c = self.contacts.get(limb)
         if not self.params.line_contact.enabled or c is None or not self._is_line_hold(hold):
             return

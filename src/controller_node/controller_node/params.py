@@ -76,8 +76,8 @@ class ContactParams:
 @dataclass(frozen=True)
 class LineContactParams:
     enabled: bool = param(True, unit="-", description=(
-        "locate a sole's line on a round rung from the ankle F/T while the contact engages and move the "
-        "contact there (a rung off its planned place along the sole: line_contact.py)"))
+        "locate a sole's line on a round rung from the ankle F/T from the contact's engage ramp on and move "
+        "the contact there (a rung off its planned place along the sole: line_contact.py)"))
     locate_force: float = param(20.0, unit="N", min=1.0,
                                 description="readings count once the contact's normal force exceeds this")
     samples: int = param(3, unit="-", min=2, description="readings counted before the first estimate")
