@@ -7,9 +7,20 @@ import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
-# A private domain per session (the test runner's pid spreads concurrent runs over 0..101).
+
+def _private_domain() -> int:
+    """A private ROS domain in 1..100 per test process: the runner's pid spreads concurrent runs;
+    under pytest-xdist the workers of one run (same parent) get distinct domains, so that their
+    graphs never see each other."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if not worker.startswith("gw"):
+        return 1 + os.getpid() % 100
+    n = max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
+    return 1 + (os.getppid() % max(1, 100 // n)) * n + int(worker[2:]) % n
+
+
 if "ROS_DOMAIN_ID" not in os.environ or os.environ.get("CLIMB_TEST_PRIVATE_DOMAIN", "1") == "1":
-    os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 100)
+    os.environ["ROS_DOMAIN_ID"] = str(_private_domain())
 # The project's loopback profile applied as is: with it, SYSTEM_DEFAULT binds every socket to
 # 127.0.0.1, while LOCALHOST would add senders on 0.0.0.0 and eth0 (measured, climb_core.ros_env).
 os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(ROOT / "config" / "fastdds_localhost.xml")

@@ -2,7 +2,8 @@
 climb_coordinator.graph as scripts/climb.py does), lock-step, G1.
 
 One graph per climb (a class-scoped fixture; the graph stops when its class is done):
-- 2 rungs in QP mode through the `climb` action, with a one-period actuation latency (the bridge's
+- 1 rung in QP mode through the `climb` action (mount and a cycle: 14 transitions; make demo climbs
+  2 through the same graph), with a one-period actuation latency (the bridge's
   lockstep.command_delay_ticks = 1 and the request's command_delay_ticks = 1: the physics of a tick
   runs while the controller computes the next, as on hardware, and the lock-step runs ~2x faster on
   2 cores); bad requests refused at once before it, a second request refused while it runs;
@@ -277,6 +278,12 @@ BAD_REQUESTS = {
 }
 
 
+#: the QP climb's rungs: 1 keeps make test under its 25 minutes; the 2-rung climb through the graph
+#: is make demo's, and tests/sim climbs 2 and 3 rungs in process
+QP_RUNGS = 1
+
+
+@pytest.mark.heavy
 class TestQpClimbThroughTheAction:
     @pytest.fixture(scope="class")
     def run(self, tmp_path_factory):
@@ -285,7 +292,7 @@ class TestQpClimbThroughTheAction:
             c = g.client
             refusals = {case: c.climb_service(**kw) for case, (kw, _) in BAD_REQUESTS.items()}
             t0 = time.monotonic()
-            handle = c.send_goal(rungs=2, controller_mode="qp", scenario="default", robot="g1",
+            handle = c.send_goal(rungs=QP_RUNGS, controller_mode="qp", scenario="default", robot="g1",
                                  command_delay_ticks=1)
             c.wait_for(c.executing_since(1.0, t0), 900.0, "the controller executing the plan", running_since=t0)
             busy = c.climb_service(rungs=1)
@@ -306,25 +313,26 @@ class TestQpClimbThroughTheAction:
         assert not res.accepted and "busy" in res.error, res.error
         assert seconds < 20.0
 
-    def test_two_rungs_qp(self, run):
+    def test_one_rung_qp(self, run):
         r, s, c = run["result"], run["summary"], run["client"]
-        _check_success(s, 2, c)
+        _check_success(s, QP_RUNGS, c)
         # the typed result agrees with the summary
-        assert r.success and not r.cancelled and r.rungs_reached == 2 and r.rungs_requested == 2
+        assert r.success and not r.cancelled and r.rungs_reached == QP_RUNGS == r.rungs_requested
         assert r.mode == "qp" == s["mode"] and r.fell is False and r.replans == 0
         assert s["command_delay_ticks"] == 1
-        assert r.n_stances == s["n_stances"] > 20 and r.sim_time_s == pytest.approx(s["sim_time_s"])
+        assert r.n_stances == s["n_stances"] > 12 and r.sim_time_s == pytest.approx(s["sim_time_s"])
         assert set(s["plan_stages_s"]) == {"guide_path", "contact_search", "primitive_adaptation"}
         # feedback went through the phases with stance k of n
         feedback = [f for _, f in c.feedback]
         phases = {f.phase for f in feedback}
         assert {"executing"} <= phases and phases & {"guide_path", "contact_search", "adaptation"}, phases
-        assert max(f.stance_index for f in feedback) >= 20
+        assert max(f.stance_index for f in feedback) >= r.n_stances - 2
 
 
 # ------------------------------------------------------------------------------ compliance, service
 
 
+@pytest.mark.heavy
 class TestComplianceClimbWithAReplanThroughTheService:
     """2 rungs in compliance mode through the `climb` service, followed on climb/status, with a
     one-period actuation latency, and a replan after a contact found off the plan: the simulator's
@@ -389,6 +397,7 @@ class TestComplianceClimbWithAReplanThroughTheService:
 # ------------------------------------------------------------------------------ cancel
 
 
+@pytest.mark.heavy
 class TestCancelMidClimb:
     @pytest.fixture(scope="class")
     def run(self, tmp_path_factory):

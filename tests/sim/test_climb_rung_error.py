@@ -14,8 +14,8 @@ with rung 2 where the foot found it.
 Rung 3 2 cm deeper (dx, the issue's case) is a 3-rung climb: the feet locate the rung's line
 under the sole from the ankle F/T (controller_node.line_contact), no replan.
 
-The nominal climb is executed through the graph (tests/ros/test_graph_climb.py: 2 rungs in QP
-mode, 2 rungs in compliance mode, judged from topics); in process the same 2-step climb runs here,
+The nominal climb is executed through the graph (tests/ros/test_graph_climb.py: 1 rung in QP
+mode, 2 rungs in compliance mode, judged from topics); in process the 2-step climb runs here,
 perturbed, and in test_climb_variants.py (a rung up and back down)."""
 from __future__ import annotations
 

@@ -293,7 +293,7 @@ class Controller:
 
     def reset_failure(self) -> bool:
         """Leave the failure state (external `reset` event)."""
-        self.recovery.fallback_active = False
+        self.recovery.clear_fallback()
         return self.fsm.fire(self, "reset")
 
     # ------------------------------------------------------------------ tick
@@ -312,10 +312,12 @@ class Controller:
             self.recovery.on_impact(hit)
         if self.params.line_contact.enabled:
             # a free limb's reading is its sensor's bias; a placement on a round rung is located,
-            # not from the wrenches of a blow (its tick, a brace, the cooldown after it)
+            # not from the wrenches of a blow (its tick, a brace, the cooldown after it) nor while
+            # the QP fails (the torques then are the fallback's, not a balance on the planned line)
             self.line_locator.observe(state.ft, [limb for limb in self.limbs if not self.contact_set.has(limb)])
-            if (self.line_locator.pending and hit is None and self.recovery.brace is None
-                    and not self.impact.quiet(self.time)):
+            r = self.recovery
+            if (self.line_locator.pending and hit is None and r.brace is None and not self.impact.quiet(self.time)
+                    and r.failing_since is None and not r.fallback_active):
                 for estimate in self.line_locator.update(self.time, self.wb.data.oMf, state.ft):
                     self._move_contact_line(estimate)
         self.fsm.step(self)

@@ -47,22 +47,19 @@ def _cross(a, b) -> tuple[float, float, float]:
 
 @dataclass
 class _Pending:
+    """One placement being located. The vectors are tuples of Python floats (sensor frame): the
+    per-tick arithmetic on them costs ~5x less than on numpy scalars."""
+
     sensor: str
     sensor_fid: int
     limb_fid: int
-    r0: np.ndarray  # (3,) planned line centre, sensor frame [m]
-    u: np.ndarray  # (3,) line axis, sensor frame
-    d: np.ndarray  # (3,) sole forward across the line, sensor frame
-    n_sensor: np.ndarray  # (3,) contact normal (toward the robot) at the start, sensor frame
-    bias: np.ndarray  # (6,) the sensor's reading of nothing (free limb, weight removed) [N, N m]
+    r0: tuple  # (3,) planned line centre [m]
+    u: tuple  # (3,) line axis
+    d: tuple  # (3,) sole forward across the line
+    n: tuple  # (3,) contact normal (toward the robot) at the start
+    bias: tuple  # (6,) the sensor's reading of nothing (free limb, weight removed) [N, N m]
     since: float | None = None  # [s] first counted reading
-    # the same vectors as Python floats (the per-tick arithmetic: numpy scalars cost ~5x more)
-    r0_f: tuple = ()
-    u_f: tuple = ()
-    d_f: tuple = ()
-    n_f: tuple = ()
-    bias_f: tuple = ()
-    n: int = 0  # readings counted
+    count: int = 0  # readings counted
     n_eff: float = 0.0  # their weight in the fit (older readings fade)
     sab: float = 0.0
     sbb: float = 0.0
@@ -152,11 +149,10 @@ class LineContactLocator:
             return False
         n = np.asarray(normal_world, float) / np.linalg.norm(normal_world)
         bias = self._bias.pop(limb, np.zeros(6))
-        job = _Pending(sensor, sensor_fid, limb_fid, pts.mean(axis=0), u, d / np.linalg.norm(d),
-                       oMf[sensor_fid].rotation.T @ n, bias)
-        job.r0_f, job.u_f, job.d_f = tuple(job.r0.tolist()), tuple(job.u.tolist()), tuple(job.d.tolist())
-        job.n_f, job.bias_f = tuple(job.n_sensor.tolist()), tuple(np.asarray(bias, float).tolist())
-        self._pending[limb] = job
+        self._pending[limb] = _Pending(
+            sensor, sensor_fid, limb_fid, tuple(pts.mean(axis=0).tolist()), tuple(u.tolist()),
+            tuple((d / np.linalg.norm(d)).tolist()), tuple((oMf[sensor_fid].rotation.T @ n).tolist()),
+            tuple(np.asarray(bias, float).tolist()))
         return True
 
     def cancel(self, limb: str) -> None:
@@ -179,27 +175,27 @@ class LineContactLocator:
             k = mass * GRAVITY[2]
             r2 = R[2].tolist()
             g = (k * r2[0], k * r2[1], k * r2[2])  # the distal body's weight, sensor frame [N]
-            bias = job.bias_f
+            bias = job.bias
             force = (w[0] - g[0] - bias[0], w[1] - g[1] - bias[1], w[2] - g[2] - bias[2])
             c = _cross(com, g)
             mx, my, mz = w[3] - c[0] - bias[3], w[4] - c[1] - bias[4], w[5] - c[2] - bias[5]
-            nx, ny, nz = job.n_f
+            nx, ny, nz = job.n
             if force[0] * nx + force[1] * ny + force[2] * nz < p.locate_force:
                 continue
             if job.since is None:
                 job.since = now
-            rx, ry, rz = _cross(job.r0_f, force)
-            ux, uy, uz = job.u_f
+            rx, ry, rz = _cross(job.r0, force)
+            ux, uy, uz = job.u
             a = (mx - rx) * ux + (my - ry) * uy + (mz - rz) * uz
-            dx, dy, dz = _cross(job.d_f, force)
+            dx, dy, dz = _cross(job.d, force)
             b = dx * ux + dy * uy + dz * uz
             fade = self._fade
-            job.n += 1
+            job.count += 1
             job.n_eff = fade * job.n_eff + 1.0
             job.sab = fade * job.sab + a * b
             job.sbb = fade * job.sbb + b * b
             job.saa = fade * job.saa + a * a
-            if job.n < p.samples or job.sbb <= 0.0:
+            if job.count < p.samples or job.sbb <= 0.0:
                 continue
             s = job.sab / job.sbb
             dof = max(job.n_eff - 1.0, 1.0)
@@ -212,6 +208,6 @@ class LineContactLocator:
                 continue
             job.applied = s
             T_limb_sensor = oMf[job.limb_fid].inverse() * oMf[job.sensor_fid]
-            done.append(LineEstimate(limb, move, T_limb_sensor.rotation @ (move * job.d), job.n, std,
-                                     R @ job.n_sensor, s))
+            done.append(LineEstimate(limb, move, T_limb_sensor.rotation @ (move * np.array(job.d)), job.count,
+                                     std, R @ np.array(job.n), s))
         return done

@@ -254,6 +254,10 @@ class Recovery:
         return (after > 0.0 and self.solved_since is not None and c.time - self.solved_since >= after - 1e-9
                 and self.brace_settled())
 
+    def clear_fallback(self) -> None:
+        """The external ``reset``: the QP's torques drive again (the failure's hold target stays)."""
+        self.fallback_active = False
+
     def leave_failure(self) -> None:
         c = self.c
         self.fallback_active = False
