@@ -18,8 +18,10 @@ def climb(mode: str, tmp_path, max_transitions=None, command_delay_ticks=0):
     return result, settings
 
 
-def check_run(result, settings, mode: str) -> dict:
-    """Checks every executed climb must pass; returns the feet's rungs (simulator contacts)."""
+def check_run(result, settings, mode: str, allow_qp_failures: bool = False) -> dict:
+    """Checks every executed climb must pass; returns the feet's rungs (simulator contacts).
+    ``allow_qp_failures``: a blow's infeasible QPs, answered by the brace's relaxed solve, are
+    allowed (the caller asserts they fell inside a brace)."""
     from climb_coordinator import judge
     from msgs_py.bag import read_bag
 
@@ -29,7 +31,7 @@ def check_run(result, settings, mode: str) -> dict:
     # nothing fell, the controller finished its plan without a QP failure
     assert not s["fell"], s["failure_reason"]
     assert s["fsm_state"] == "hold", s["failure_reason"]
-    assert s["qp_failures"] == 0
+    assert allow_qp_failures or s["qp_failures"] == 0
     assert s["transitions_done"] == s["n_transitions"]
     # unilateral contacts inside their friction cones over the whole run (sampled at the log
     # rate; loads of at least climb.judge.cone_force_min)

@@ -169,7 +169,10 @@ def test_a_failed_plan_is_the_failure_reason():
 
 
 @pytest.mark.parametrize("changes, field", [({"robot": "nobody"}, "robot"), ({"rungs": 5}, "rungs"),
-                                            ({"ladder": "no_such_ladder"}, "source"), ({"mode": "x"}, "mode")])
+                                            ({"ladder": "no_such_ladder"}, "source"), ({"mode": "x"}, "mode"),
+                                            ({"start_posture": "ladder_4_contacts"}, "start_posture"),
+                                            ({"start_posture": "ladder_4_contacts", "strategy": "search",
+                                              "descend": True}, "strategy")])
 def test_check_request_refuses_with_the_field(changes, field):
     with pytest.raises(SpecError) as err:
         check_request(ClimbRequest(**changes))
