@@ -227,6 +227,32 @@ def test_search_gives_up_and_asks_for_replanning_without_contact(ladder):
     assert "right_hand" not in controller.contacts  # never added without a contact
 
 
+def test_the_search_is_bounded_by_the_limbs_own_travel_then_by_its_targets_lead(ladder, monkeypatch):
+    """A limb that lags its creeping target (a foot lags ~1 cm on the robot) searches until it has
+    itself travelled search_distance past the plan; a limb that never gets there (held back by
+    something it does not feel) gives up once its target ran search_lead_max further."""
+    robot, env, stance, q, transition = ladder
+    g = {"guarded.search_distance": 0.02, "guarded.search_lead_max": 0.01}
+    ended = {}
+    for lag in (0.005, 0.05):  # [m] the limb's travel behind its target's
+        params = load_controller_params(**{"collision.enabled": False, **g})
+        controller = Controller(robot, params, env)
+        true_travel = controller.search_travel
+        monkeypatch.setattr(controller, "search_travel", lambda limb, f=true_travel, d=lag: f(limb) - d)
+        loop = KinematicLoop(controller, q)  # no rung where planned: the search runs out
+        controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+        controller.set_plan(plan_of(robot, env, stance, [transition]))
+        _, out = _run_until_settled(loop, 1600)
+        assert out.status.fsm_state == "replan_needed" and controller.replan_reason == "no_contact"
+        (ended[lag],) = controller.events_of("search_exhausted")
+    # the limb 5 mm behind: its target ran 5 mm further, and the limb itself 2 cm
+    assert ended[0.005].values["target_travel"] == pytest.approx(0.025, abs=0.001)
+    assert ended[0.005].values["limb_travel"] == pytest.approx(0.02, abs=0.001)
+    # the limb far behind: the target's lead ends it (2 + 1 cm), the limb short of 2 cm
+    assert ended[0.05].values["target_travel"] == pytest.approx(0.03, abs=0.001)
+    assert ended[0.05].values["limb_travel"] < 0.0
+
+
 def test_a_state_that_cannot_start_leaves_the_fsm_holding(ladder, monkeypatch):
     """A transition the controller cannot start (here start_path raising, as a malformed plan's
     did under fuzzing) is reported to the caller once, and the FSM holds the active contacts

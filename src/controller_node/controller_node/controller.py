@@ -455,6 +455,14 @@ class Controller:
         lag = float(creep @ (task.T_world_target.translation - task.current(self.wb.view).translation))
         return lag > g.stall_lag and self.ft.confirms_stall(limb, self.path.approach.get(limb))
 
+    def search_travel(self, limb: str) -> float:
+        """[m] how far the limb itself has moved past the search's origin (its last planned target)
+        along the search direction (0 before the search creeps)."""
+        creep, origin = self.path.creep_dir, self.path.creep_origin
+        if limb != self.moving_limb or creep is None or origin is None or not np.any(creep):
+            return 0.0
+        return float(creep @ (self.contact_body_tasks[limb].current(self.wb.view).translation - origin.translation))
+
     # ------------------------------------------------------------------ contacts (ContactSet)
     @property
     def contacts(self) -> dict[str, ActiveContact]:

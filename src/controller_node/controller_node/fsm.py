@@ -158,6 +158,7 @@ class Context(Protocol):
     def ft_force_change(self, limb: str) -> float: ...
     def contact_threshold(self, limb: str) -> float: ...
     def search_stalled(self, limb: str) -> bool: ...
+    def search_travel(self, limb: str) -> float: ...
     def set_guard(self, limb: str, surface: str, on: bool) -> None: ...
     def emit(self, kind: str, **values: Any) -> None: ...
 
@@ -349,7 +350,11 @@ class TransferState(State):
 
 
 class SearchState(State):
-    """Past the planned pose without contact: creep along the approach direction, bounded."""
+    """Past the planned pose without contact: creep along the approach direction, bounded by the
+    limb's own travel (``guarded.search_distance``), not its target's: a limb lagging its creeping
+    target (a foot lags ~1 cm) is given up to ``guarded.search_lead_max`` more target travel, so
+    that a foothold missed by 4 cm is still found (measured before: rung 2 4 cm low, the foot's
+    target 5 cm past the plan, the foot 3.8 cm, 2 mm above the rung: ``no_contact``)."""
 
     name = "search"
     events = ("contact", "exhausted")
@@ -371,7 +376,10 @@ class SearchState(State):
             ctx.emit("contact_detected", limb=limb, early=False, state=self.name,
                      extra_travel=self.travelled, by="force" if by_force else "stall")
             return "contact"
-        if self.travelled >= g.search_distance:
+        if self.travelled >= g.search_distance and (ctx.search_travel(limb) >= g.search_distance
+                                                    or self.travelled >= g.search_distance + g.search_lead_max):
+            ctx.emit("search_exhausted", limb=limb, target_travel=round(self.travelled, 4),
+                     limb_travel=round(ctx.search_travel(limb), 4))
             ctx.path.freeze_limb()
             ctx.replan_reason = "no_contact"
             return "exhausted"

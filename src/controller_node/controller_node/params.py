@@ -173,7 +173,13 @@ class GuardedParams:
                                   description="the contact-body stiffness ramps to search_stiffness over this time "
                                               "once the approach begins")
     search_distance: float = param(0.05, unit="m", min=0.0,
-                                   description="max extra travel before reporting that replanning is needed")
+                                   description="the search past the planned pose ends without contact (replanning "
+                                               "is needed) once the limb itself has travelled this far past it")
+    search_lead_max: float = param(0.025, unit="m", min=0.0,
+                                   description="the search's creeping target may run this far beyond "
+                                               "search_distance while the limb lags behind it (then the search "
+                                               "ends whatever the limb's travel): a limb that lags its target "
+                                               "reaches the surface before the search gives up")
     replan_offset: float = param(0.025, unit="m", min=0.0,
                                  description="a placement that found its surface farther than this from the "
                                              "plan (early or late, along the approach) loads the contact, then "
