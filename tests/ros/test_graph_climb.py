@@ -13,7 +13,8 @@ One graph per climb (a class-scoped fixture; the graph stops when its class is d
   FSM holds in replan_needed, the coordinator replans in the corrected model through every
   planning node, and the climb completes;
 - a cancel mid-climb (the robot holds >= 10 s of sim time with its contacts unchanged, nothing
-  falls), then a second climb on the same graph (it executes on the reset simulator);
+  falls), then a second climb on the same graph, a scene without a ladder (step_up, strategy
+  search), executed on the reset simulator to the scene's goal;
 - SIGKILL of the controller mid-climb (the coordinator reports the dead node within 2 s, the
   bridge damps every joint);
 - SIGKILL of scripts/climb.py (no child survives).
@@ -417,18 +418,18 @@ class TestCancelMidClimb:
             with c.lock:
                 after = [m for t, m in c.contacts if t > t_cancel + 1.0]
                 fsm_after = {s[2] for s in c.states if s[0] > t_cancel + 1.0}
-            # the same graph takes the next climb: the simulator is reset (its time restarts at 0)
-            # and the reconfigured controller ticks on the new world's states and executes
+            # the same graph takes the next climb, a scene (step_up: no ladder, strategy search):
+            # the simulator is reset to the scene (its time restarts at 0), the reconfigured
+            # controller ticks on the new world's states and executes to the scene's goal
             t1 = time.monotonic()
-            second = c.send_goal(rungs=1, controller_mode="qp", scenario="default")
-            c.wait_for(c.executing_since(2.0, t1), 900.0, "the second climb executing", running_since=t1)
+            second = c.send_goal(rungs=1, controller_mode="qp", scenario="step_up", strategy="search")
+            second_result = c.result(second)
             with c.lock:
                 second_states = [s for s in c.states if s[0] >= t1]
-            c.wait_future(second.cancel_goal_async(), 30.0)
-            second_result = c.result(second, 120.0)
+                second_contacts = [m for t, m in c.contacts if t >= t1]
             yield {"result": result, "summary": json.loads(result.summary_json), "cancel": cancel,
                    "contacts_after": after, "fsm_after": fsm_after, "second_states": second_states,
-                   "second_result": second_result}
+                   "second_result": second_result, "second_contacts": second_contacts}
 
     def test_cancel_mid_climb_holds_with_contacts_unchanged(self, run):
         r, s = run["result"], run["summary"]
@@ -458,8 +459,39 @@ class TestCancelMidClimb:
         assert ticking, {s[2] for s in states}
         assert ticking[0][1] < 30.0, ticking[0]  # [s] sim time: the new world's, not the old one's
         assert ticking[-1][1] - ticking[0][1] >= 2.0
+
+    def test_a_scene_is_climbed_through_the_graph_to_its_goal(self, run):
+        """The next climb is a scene without a ladder (config/scenes/step_up.yaml, a 0.10 m step),
+        through the action with strategy search: guide_path, contact_search and
+        primitive_adaptation plan it (the search's generic contact-body paths), the controller
+        executes it against the bridge, and the coordinator judges the scene's goal from
+        sim/base_truth (scene_spec.md, Results). Cross-checked on sim/contacts as the test
+        received it: both feet end on the step carrying the robot, nothing fell, every foot load
+        inside its friction cone."""
+        from climb_coordinator.coordinator_node import cone_use_for
+        from climb_coordinator.settings import load_climb_settings
+
         r = run["second_result"]
-        assert r.cancelled and not r.fell, r.failure_reason
+        s = json.loads(r.summary_json)
+        assert r.success and not r.cancelled and not r.fell, r.failure_reason
+        assert s["scene"] == "step_up" and s["goal_reached"] is True, s
+        assert s["goal_distance_m"] <= 0.15 and s["settle_base_speed_max_m_s"] < 0.05
+        assert s["contacts_used"] == ["ground", "step"]
+        assert set(s["plan_stages_s"]) == {"guide_path", "contact_search", "primitive_adaptation"}
+        assert s["fsm_state"] == "hold" and s["qp_failures"] == 0
+        assert s["transitions_done"] == s["n_transitions"] >= 4
+        received = run["second_contacts"]
+        assert received and not any(m.fell for m in received)
+        last = received[-1]
+        on = {limb: (last.surface[i], last.normal_force[i]) for i, limb in enumerate(last.limbs)}
+        assert all(on[f][0] == "step" and on[f][1] >= 20.0 for f in FEET), on
+        assert on["left_foot"][1] + on["right_foot"][1] > 250.0, on  # [N] G1's ~340 N weight, feet only
+        cs = load_climb_settings()
+        mine = cone_use_for("step_up", cs.cone_force_min)
+        for m in received:
+            mine.add_contacts(m)
+        assert mine.samples > 1000 and set(FEET) <= set(mine.max_use), mine.summary()
+        assert all(v <= 1.0 + cs.cone_tolerance for v in mine.max_use.values()), mine.summary()
 
 
 # ------------------------------------------------------------------------------ dead controller

@@ -172,12 +172,16 @@ def test_a_failed_plan_is_the_failure_reason():
                                             ({"ladder": "no_such_ladder"}, "source"), ({"mode": "x"}, "mode"),
                                             ({"start_posture": "ladder_4_contacts"}, "start_posture"),
                                             ({"start_posture": "ladder_4_contacts", "strategy": "search",
-                                              "descend": True}, "strategy")])
+                                              "descend": True}, "strategy"),
+                                            ({"ladder": "step_up"}, "strategy"),
+                                            ({"ladder": "step_up", "strategy": "search",
+                                              "start_posture": "ladder_4_contacts"}, "start_posture")])
 def test_check_request_refuses_with_the_field(changes, field):
     with pytest.raises(SpecError) as err:
         check_request(ClimbRequest(**changes))
     assert err.value.field == field
     check_request(ClimbRequest(rungs=4))  # the default ladder gives G1 rung 4 (hands on rung 8)
+    check_request(ClimbRequest(ladder="step_up", strategy="search"))  # a scene: through the graph too
 
 
 class SceneJudge(Judge):

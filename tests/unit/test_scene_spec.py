@@ -18,7 +18,7 @@ from sim_bridge.world_bodies import robot_lateral_friction
 from climb_core.ladder import available_ladders, available_scenes, load_scenario, parse_scenario
 from climb_core.scene import BILATERAL_MAX_WIDTH, ladder_surface_names
 
-SHIPPED_SCENES = ("car_ingress", "narrow_passage", "narrow_passage_step", "stairs_handrail")
+SHIPPED_SCENES = ("car_ingress", "narrow_passage", "narrow_passage_step", "stairs_handrail", "step_up")
 DELETE = object()
 
 

@@ -401,7 +401,10 @@ def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
     scenario = load_scenario(req.ladder)
     env = build_environment(scenario)
     robot = load_robot(req.robot)
-    psettings = apply_planner_overrides(load_settings(), cs.planner_overrides)
+    overrides = dict(cs.planner_overrides)
+    if getattr(scenario, "ladder", None) is None:  # a scene: the planner's own torque shares
+        overrides.update(cs.scene_planner_overrides)
+    psettings = apply_planner_overrides(load_settings(), overrides)
     p = psettings.planning
     if req.strategy == "search":
         posture = req.start_posture or "standing"

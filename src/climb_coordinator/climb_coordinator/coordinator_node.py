@@ -697,6 +697,9 @@ def _make_node():
             judge = RosJudge(self)
             session = ClimbSession(req, self.cs, plans, executor, judge,
                                    say=lambda m: self.get_logger().info(m), on_phase=self._on_phase(run))
+            goal = scene_goal(text)
+            if goal is not None:  # a scene without a ladder: judged on its goal (scene_spec.md)
+                session.goal = goal
             run.session = session
             executor.session = session
             return session.run()
@@ -1105,6 +1108,17 @@ def _make_node():
             limbs = self._limbs()
             return {h: (limbs[h][1] if limbs[h][2] else "") for h in HANDS if h in limbs}
 
+        def base(self) -> tuple[np.ndarray, float]:
+            """The simulator's base position [m] and linear speed [m/s]: the newest sim/base_truth
+            (ground truth, sim-only; NaN when none arrives within 3 s)."""
+            from msgs_py import cdr
+
+            try:
+                b = cdr.read_odometry(self.node.wait_message("sim/base_truth", 3.0))
+            except ClimbError:
+                return np.full(3, np.nan), float("nan")
+            return np.asarray(b.pose[:3], float), float(np.linalg.norm(b.twist[:3]))
+
     def _shipped() -> list[str]:
         from climb_core.ladder import available_ladders
 
@@ -1113,6 +1127,18 @@ def _make_node():
     node = CoordinatorNode()
     # the summary's tick figures: controller/state tick_time_ms, sampled by the executor's polls
     return node
+
+
+def scene_goal(text: str) -> tuple[np.ndarray, float] | None:
+    """(goal base position [m], tolerance [m]) of a scene without a ladder (scene_spec.md,
+    Results), None for a ladder."""
+    from climb_core.ladder import load_scenario
+
+    scenario = load_scenario(text)
+    scene = getattr(scenario, "scene", None)
+    if scene is None or getattr(scenario, "ladder", None) is not None or scene.goal is None:
+        return None
+    return np.asarray(scene.goal.base_position, float), float(scene.goal.tolerance)
 
 
 def fill_result(result: Any, climb_id: str, summary: dict) -> Any:

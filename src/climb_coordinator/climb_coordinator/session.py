@@ -145,10 +145,14 @@ def check_request(req: ClimbRequest) -> Any:
     if req.robot not in known:
         raise SpecError("robot", f"unknown robot {req.robot!r} (known: {', '.join(known)})")
     scenario = load_scenario(req.ladder)
-    if getattr(scenario, "ladder", None) is None:
-        raise SpecError("scenario.ladder", "a scene without a ladder is executed in process only "
-                                           "(scripts/climb.py --scenario NAME --strategy search); through the "
-                                           "graph, ladders")
+    if getattr(scenario, "ladder", None) is None:  # a scene: its goal ends the climb, not rungs
+        if req.strategy != "search":
+            raise SpecError("strategy", "a scene without a ladder is planned by the contact search: must be "
+                                        f"search, got {req.strategy!r}")
+        if req.start_posture not in ("", "standing"):
+            raise SpecError("start_posture", "a scene starts standing at its start pose, got "
+                                             f"{req.start_posture!r}")
+        return scenario
     from planner_node.settings import load_settings
 
     p = load_settings().planning

@@ -19,6 +19,8 @@ class ClimbSettings:
     controller_overrides: dict = field(default_factory=dict)
     compliance_overrides: dict = field(default_factory=dict)
     planner_overrides: dict = field(default_factory=dict)  # dotted planner settings (section.field)
+    #: applied after planner_overrides when the scenario is a scene without a ladder
+    scene_planner_overrides: dict = field(default_factory=dict)
     bag_rate_hz: float = 50.0  # [Hz]
     log_rate_hz: float = 50.0  # [Hz]
     foot_force_min: float = 20.0  # [N]
@@ -68,14 +70,18 @@ def load_climb_settings(path: str | pathlib.Path | None = None) -> ClimbSettings
     overrides = root.get("controller_overrides") or {}
     compliance = root.get("compliance_overrides") or {}
     planner = root.get("planner_overrides") or {}
+    scene_planner = root.get("scene_planner_overrides") or {}
     if not isinstance(overrides, dict) or not isinstance(compliance, dict) or not isinstance(planner, dict):
         raise SpecError("climb.controller_overrides", "must be mappings of dotted parameter names")
+    if not isinstance(scene_planner, dict):
+        raise SpecError("climb.scene_planner_overrides", "must be a mapping of dotted planner settings")
     return ClimbSettings(
         extra_time_s=_num(run, "extra_time_s", "climb.run"),
         settle_time_s=_num(run, "settle_time_s", "climb.run"),
         failure_recovery_s=_num(run, "failure_recovery_s", "climb.run") if "failure_recovery_s" in run else 3.0,
         plan_joint_limit_margin=_num(plan, "joint_limit_margin", "climb.plan"),
         controller_overrides=dict(overrides), compliance_overrides=dict(compliance), planner_overrides=dict(planner),
+        scene_planner_overrides=dict(scene_planner),
         bag_rate_hz=_num(record, "bag_rate_hz", "climb.record", positive=True),
         log_rate_hz=_num(record, "log_rate_hz", "climb.record", positive=True),
         foot_force_min=_num(judge, "foot_force_min", "climb.judge"),

@@ -307,7 +307,7 @@ def apply_overrides(settings: PlannerSettings, overrides: dict, where: str = "pl
 CLIMB_OVERRIDES_FILE = "config/climb.yaml"
 
 
-def read_climb_overrides(path: str | pathlib.Path = CLIMB_OVERRIDES_FILE) -> dict:
+def read_climb_overrides(path: str | pathlib.Path = CLIMB_OVERRIDES_FILE, key: str = "planner_overrides") -> dict:
     """The ``climb.planner_overrides`` mapping of a climb settings file ({} when the path is "")."""
     import yaml
 
@@ -324,12 +324,21 @@ def read_climb_overrides(path: str | pathlib.Path = CLIMB_OVERRIDES_FILE) -> dic
     except (OSError, yaml.YAMLError) as exc:
         raise SpecError("planner_overrides_file", f"cannot read {p}: {exc}") from None
     climb = doc.get("climb") if isinstance(doc, dict) else None
-    overrides = (climb or {}).get("planner_overrides") if isinstance(climb, dict) else None
+    overrides = (climb or {}).get(key) if isinstance(climb, dict) else None
     if overrides is None:
         return {}
     if not isinstance(overrides, dict):
-        raise SpecError("planner_overrides_file", f"{p}: climb.planner_overrides must be a mapping")
+        raise SpecError("planner_overrides_file", f"{p}: climb.{key} must be a mapping")
     return dict(overrides)
+
+
+def scene_settings(settings: PlannerSettings, overrides_file: str | pathlib.Path = CLIMB_OVERRIDES_FILE
+                   ) -> PlannerSettings:
+    """``settings`` for a scene without a ladder: the ``climb.scene_planner_overrides`` of
+    ``overrides_file`` applied on top (config/climb.yaml: a scene plans with the planner's own
+    torque shares, not the ladder's headroom; "" for none)."""
+    return apply_overrides(settings, read_climb_overrides(overrides_file, "scene_planner_overrides"),
+                           where=f"{overrides_file or 'planner_overrides'}:climb.scene_planner_overrides")
 
 
 def climb_settings(overrides_file: str | pathlib.Path = CLIMB_OVERRIDES_FILE,
