@@ -76,8 +76,9 @@ def _unknown_surface(p):
         t.target_stance, holds=(dataclasses.replace(h, env_surface="rung_99"),) + t.target_stance.holds[1:]))
 
 
-def _no_target_hold(p):
+def _no_target_hold(p):  # the moving limb holds nothing before nor after its transition
     t = p.transitions[0]
+    p.initial_stance = p.initial_stance.without(t.moving_limb)
     p.transitions[0] = dataclasses.replace(t, target_stance=t.target_stance.without(t.moving_limb))
 
 
@@ -107,3 +108,15 @@ def test_a_bad_plan_is_refused_naming_the_field(plan, g1, env, edit, field, rule
     with pytest.raises(SpecError) as err:
         check_plan(_edit(plan, edit), g1, env)
     assert err.value.field == field and rule in err.value.rule, str(err.value)
+
+
+def test_a_limb_freed_for_good_is_accepted(plan, g1, env):
+    """A transition whose moving limb held something before and nothing after frees the limb (the
+    FSM's ``freed``: a scene's hand leaving its support for good, narrow_passage_step)."""
+    def free(p):
+        i = next(k for k, t in enumerate(p.transitions) if t.moving_limb)
+        t = p.transitions[i]
+        p.transitions[i] = dataclasses.replace(t, target_stance=t.target_stance.without(t.moving_limb))
+        p.transitions[i + 1:] = []
+    freed = _edit(plan, free)
+    check_plan(freed, g1, env)

@@ -5,7 +5,8 @@ q sizes of 7 + len(joint_names), increasing times, known limb names); :func:`che
 against the robot and the environment the controller runs: the plan's joints are the robot's in
 its order, every configuration is a usable Pinocchio q (unit quaternion, joints near their
 limits, a base near the environment), every hold names a limb of the robot and a surface of the
-environment, every transition has a path and a hold for its moving limb. A plan that fails raises
+environment, every transition has a path and a hold for its moving limb (or frees a limb
+that held something). A plan that fails raises
 SpecError naming the field (``whole_body_plan.transitions[2].path[5]``) and the rule; the
 controller keeps its current plan.
 """
@@ -49,14 +50,18 @@ def check_plan(plan: WholeBodyPlan, robot, environment=None, field: str = FIELD)
     lower, upper = _joint_limits(robot)
     _check_stance(plan.initial_stance, robot, environment, f"{field}.initial_stance")
     nq = robot.model.nq
+    before = plan.initial_stance  # the holds at each transition's start
     for k, t in enumerate(plan.transitions):
         where = f"{field}.transitions[{k}]"
         if t.moving_limb and t.moving_limb not in robot.config.limbs:
             raise SpecError(f"{where}.moving_limb", f"the robot has no limb {t.moving_limb!r}")
         _check_stance(t.stance, robot, environment, f"{where}.stance")
         _check_stance(t.target_stance, robot, environment, f"{where}.target_stance")
-        if t.moving_limb and t.target_stance.hold(t.moving_limb) is None:
-            raise SpecError(f"{where}.target_stance", f"has no hold for the moving limb {t.moving_limb}")
+        if t.moving_limb and t.target_stance.hold(t.moving_limb) is None and before.hold(t.moving_limb) is None:
+            # (a limb that held something before and nothing after is freed for good: FSM "freed")
+            raise SpecError(f"{where}.target_stance", f"has no hold for the moving limb {t.moving_limb}, "
+                                                      "which held nothing before it either")
+        before = t.target_stance
         path = np.asarray(t.path, dtype=float)
         times = np.asarray(t.times, dtype=float).reshape(-1)
         if path.ndim != 2 or path.shape[0] == 0:
