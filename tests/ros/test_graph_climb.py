@@ -15,6 +15,8 @@ One graph per climb (a class-scoped fixture; the graph stops when its class is d
 - a cancel mid-climb (the robot holds >= 10 s of sim time with its contacts unchanged, nothing
   falls), then a second climb on the same graph, a scene without a ladder (step_up, strategy
   search), executed on the reset simulator to the scene's goal;
+- narrow_passage_step (a scene where a hand pushes on a block) through the `climb` service,
+  planned by the three nodes and executed to its goal;
 - SIGKILL of the controller mid-climb (the coordinator reports the dead node within 2 s, the
   bridge damps every joint);
 - SIGKILL of scripts/climb.py (no child survives).
@@ -393,6 +395,66 @@ class TestComplianceClimbWithAReplanThroughTheService:
         assert surface == "rung_2" and offset[2] == pytest.approx(0.03, abs=0.005)
         assert replan["transition"] >= 14  # the left foot onto rung 2 (5 approach, 2 mount, 7 of cycle 1)
         assert s["transitions_done"] == s["n_transitions"]
+
+
+# ------------------------------------------------------------------------------ a scene with a hand support
+
+
+@pytest.mark.heavy
+class TestSceneWithAHandSupportThroughTheService:
+    """narrow_passage_step (the DARPA-tasks paper's Fig. 3 step, 0.33 m, a block beside it) through
+    the `climb` service with strategy search and one period of latency: the three planning nodes
+    plan it with config/climb.yaml's scene_planner_overrides, the controller node takes a plan in
+    which the right hand leaves the block for good (plan_check accepts a freed limb), and the climb
+    ends at the scene's goal. Judged from topics: the summary, and sim/contacts as the test
+    received it (the hand carries >= 10 % of the weight for a while, the feet end on the step,
+    nothing falls, unilateral loads inside their cones)."""
+
+    @pytest.fixture(scope="class")
+    def run(self, tmp_path_factory):
+        out = tmp_path_factory.mktemp("graph_scene")
+        with Graph(out, extra={"sim_bridge": {"lockstep.command_delay_ticks": 1}}) as g:
+            c = g.client
+            res, _ = c.climb_service(rungs=1, controller_mode="qp", scenario="narrow_passage_step",
+                                     strategy="search", command_delay_ticks=1)
+            assert res.accepted, res.error
+            _, status = c.final_status(res.id)
+            with c.lock:
+                received = [m for _, m in c.contacts]
+            yield {"summary": json.loads(status.text), "status": status, "contacts": received}
+
+    def test_the_scene_is_planned_by_the_nodes_and_executed_to_its_goal(self, run):
+        s = run["summary"]
+        assert run["status"].phase == "done" and s["success"], s["failure_reason"]
+        assert s["scene"] == "narrow_passage_step" and s["goal_reached"] is True
+        assert set(s["plan_stages_s"]) == {"guide_path", "contact_search", "primitive_adaptation"}
+        assert s["fsm_state"] == "hold" and s["qp_failures"] == 0 and not s["fell"]
+        assert s["transitions_done"] == s["n_transitions"] >= 15
+        assert "palm_block" in s["contacts_used"] and "step" in s["contacts_used"]
+
+    def test_a_hand_carried_weight_and_the_feet_end_on_the_step(self, run):
+        from climb_coordinator.coordinator_node import cone_use_for
+        from climb_coordinator.settings import load_climb_settings
+
+        received = run["contacts"]
+        assert received and not any(m.fell for m in received)
+        weight = 9.81 * 35.0  # [N] G1 with its hands, ~35 kg
+
+        def load(m, limb):
+            i = list(m.limbs).index(limb)
+            return m.surface[i], m.normal_force[i]
+        hand = [load(m, "right_hand") for m in received]
+        carrying = [f for surface, f in hand if surface == "palm_block" and f >= 0.1 * weight]
+        assert len(carrying) >= 40, max(f for _, f in hand)  # >= 2 s at sim/contacts' 20 Hz
+        last = received[-1]
+        assert all(load(last, f)[0] == "step" for f in FEET), [load(last, f) for f in FEET]
+        assert load(last, "right_hand")[1] == 0.0  # the hand left the block for good
+        cs = load_climb_settings()
+        mine = cone_use_for("narrow_passage_step", cs.cone_force_min)
+        for m in received:
+            mine.add_contacts(m)
+        assert mine.samples > 1000 and "right_hand" in mine.max_use, mine.summary()
+        assert all(v <= 1.0 + cs.cone_tolerance for v in mine.max_use.values()), mine.summary()
 
 
 # ------------------------------------------------------------------------------ cancel
