@@ -178,7 +178,9 @@ def _record_run(bag: pathlib.Path, env: dict) -> None:
         driver = subprocess.Popen([sys.executable, __file__, "drive"], env=env, cwd=ROOT,
                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         procs.append(driver)
-        time.sleep(2.0)  # the recorder subscribes to the latched request and the plan topic first
+        # the recorder subscribes to the plan topic before the controller ticks (a fixed 2 s sleep
+        # lost the plan once under make test's load: the recorder's start took longer)
+        _wait_for_line(driver, "recorder subscribed", 90.0)
         controller = subprocess.Popen(
             [sys.executable, "-m", "controller_node.node", "--ros-args", "--params-file",
              str(ROOT / "config" / "nodes" / "controller.yaml"), "-p", "initial_stance:=ladder_4_contacts",
@@ -199,6 +201,26 @@ def _record_run(bag: pathlib.Path, env: dict) -> None:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
+
+
+def _wait_for_line(proc: subprocess.Popen, text: str, timeout: float) -> None:
+    """Read ``proc``'s stdout until a line contains ``text`` (AssertionError after ``timeout`` s
+    or when the process ends first)."""
+    import select
+
+    deadline = time.monotonic() + timeout
+    fd = proc.stdout.fileno()  # raw reads: nothing left in the text wrapper's buffer unseen
+    seen = b""
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([fd], [], [], 0.2)
+        if ready:
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                break
+            seen += chunk
+            if text.encode() in seen:
+                return
+    raise AssertionError(f"no {text!r} from the process within {timeout} s: {seen.decode(errors='replace')[-2000:]}")
 
 
 @pytest.fixture(scope="module")
@@ -343,9 +365,13 @@ def drive_main() -> int:
             print("plan sent", flush=True)
 
     node.create_subscription(ControllerState, "controller/state", on_state, QoSProfile(depth=100))
+    announced = False
     try:
         while running():
             rclpy.spin_once(node, timeout_sec=0.05)
+            if not announced and plan_pub.get_subscription_count() >= 1:  # the recorder (no controller yet)
+                print("recorder subscribed", flush=True)
+                announced = True
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
