@@ -43,7 +43,7 @@ from climb_core.errors import SpecError
 from . import judge
 from .record import BagWriter, ClimbLog, sample
 from .session import (MODES, STOP_STATES, ClimbRequest, ClimbSession, ExecStatus, PlanOutcome, base_summary,
-                      check_request, controller_overrides, plan_duration, validate)
+                      check_request, controller_overrides, plan_duration, scene_goal, validate)
 from .settings import ClimbSettings, apply_planner_overrides, load_climb_settings
 
 __all__ = ["MODES", "ClimbRequest", "ClimbResult", "base_summary", "validate", "check_request", "plan_duration",
@@ -434,10 +434,9 @@ def execute(req: ClimbRequest, plans, cs: ClimbSettings, scenario, initial_fixtu
     executor = InProcessExecutor(req, cs, out, scenario, initial_fixture, params, backend)
     session = ClimbSession(req, cs, plans, executor, BackendJudge(backend, cs, executor), say)
     session.summary = summary
-    scene = getattr(scenario, "scene", None)
-    goal = scene.goal if scene is not None and getattr(scenario, "ladder", None) is None else None
+    goal = scene_goal(scenario)
     if goal is not None:  # a scene without a ladder: judged on its goal (scene_spec.md)
-        session.goal = (np.asarray(goal.base_position, float), float(goal.tolerance))
+        session.goal = goal
     executor.session = session
     session.transition_drops = [d for d in scenario.perturbation.drops if d.on_transition]
     try:

@@ -47,7 +47,7 @@ from climb_core.errors import ClimbError, SpecError
 from climb_core.params import param
 
 from .session import (MAX_FORCED_REPLANS, ClimbRequest, ClimbSession, ExecStatus, PlanOutcome, stance_feet_rung,
-                      check_request, controller_overrides, ladder_name)
+                      check_request, controller_overrides, ladder_name, scene_goal)
 
 NODE_NAME = "climb_coordinator"
 #: [s] wait for guide_path's subscription to plan/request before a request is published
@@ -697,7 +697,9 @@ def _make_node():
             judge = RosJudge(self)
             session = ClimbSession(req, self.cs, plans, executor, judge,
                                    say=lambda m: self.get_logger().info(m), on_phase=self._on_phase(run))
-            goal = scene_goal(text)
+            from climb_core.ladder import load_scenario
+
+            goal = scene_goal(load_scenario(text))
             if goal is not None:  # a scene without a ladder: judged on its goal (scene_spec.md)
                 session.goal = goal
             run.session = session
@@ -1127,18 +1129,6 @@ def _make_node():
     node = CoordinatorNode()
     # the summary's tick figures: controller/state tick_time_ms, sampled by the executor's polls
     return node
-
-
-def scene_goal(text: str) -> tuple[np.ndarray, float] | None:
-    """(goal base position [m], tolerance [m]) of a scene without a ladder (scene_spec.md,
-    Results), None for a ladder."""
-    from climb_core.ladder import load_scenario
-
-    scenario = load_scenario(text)
-    scene = getattr(scenario, "scene", None)
-    if scene is None or getattr(scenario, "ladder", None) is not None or scene.goal is None:
-        return None
-    return np.asarray(scene.goal.base_position, float), float(scene.goal.tolerance)
 
 
 def fill_result(result: Any, climb_id: str, summary: dict) -> Any:

@@ -254,6 +254,15 @@ def replan_stance(plan: WholeBodyPlan, index: int, done: bool = False) -> Stance
     return plan.transitions[index - 1].target_stance if index > 0 else plan.initial_stance
 
 
+def scene_goal(scenario) -> tuple[np.ndarray, float] | None:
+    """(goal base position [m], tolerance [m]) of a scene without a ladder (scene_spec.md,
+    Results), None for a ladder or a scene without a goal."""
+    scene = getattr(scenario, "scene", None)
+    if scene is None or getattr(scenario, "ladder", None) is not None or scene.goal is None:
+        return None
+    return np.asarray(scene.goal.base_position, float), float(scene.goal.tolerance)
+
+
 def stance_feet_rung(stance: Stance) -> int:
     from .judge import rung_index
 

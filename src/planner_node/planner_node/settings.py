@@ -308,7 +308,8 @@ CLIMB_OVERRIDES_FILE = "config/climb.yaml"
 
 
 def read_climb_overrides(path: str | pathlib.Path = CLIMB_OVERRIDES_FILE, key: str = "planner_overrides") -> dict:
-    """The ``climb.planner_overrides`` mapping of a climb settings file ({} when the path is "")."""
+    """The ``climb.<key>`` mapping of a climb settings file (``planner_overrides`` or
+    ``scene_planner_overrides``; {} when the path is "")."""
     import yaml
 
     from climb_core.errors import SpecError
