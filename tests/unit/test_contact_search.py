@@ -168,6 +168,28 @@ def test_out_of_reach_milestone_fails_from_the_search_within_its_time_limit(g1, 
     assert elapsed < params.time_limit_s + 3.0  # at most one IK call beyond the limit
 
 
+def test_an_intermediate_milestone_no_stance_reaches_is_given_up_for_the_next(g1, env, no_primitives):
+    """Two intermediate milestones 2 m to the side of the ladder, in the air, 5 cm apart (a guide
+    path's free-flyer may hover where no contact set holds it, car_ingress's did in front of the
+    sill): no node gets to the first nor is as close to the second as it is (passed), so after
+    ``milestone_max_nodes`` expansions the search gives it up and targets the next from the same
+    node (the second is passed at once: the rung above is closer to it) and climbs on."""
+    q0, stance0, path = ladder_path(g1, env, 2)
+    far = path.milestones[1].copy()
+    far[1] += 2.0
+    farther = far.copy()
+    farther[0] += 0.05
+    detour = GuidePath(path.robot, path.environment, path.joint_names,
+                       [path.milestones[0], path.milestones[1], far, farther, path.milestones[2]])
+    params = dataclasses.replace(load_settings().contact_search, milestone_max_nodes=10, time_limit_s=120.0)
+    result = cs.search(g1, env, q0, stance0, detour, params)
+    assert result.stats.milestones_skipped == [2]
+    assert len(result.milestone_nodes) == 4  # milestones 0, 1, 3 and 4
+    last = result.plan.stances[-1]
+    assert {rung_index(last.hold(f).env_surface) for f in FEET} == {3}
+    assert result.plan.transition_configurations[-1][1] == pytest.approx(q0[1], abs=0.1)  # not to the side
+
+
 def test_guide_path_of_another_robot_is_refused(g1, env):
     q0, stance0, path = ladder_path(g1, env, 0)
     other = GuidePath("h1", path.environment, path.joint_names, path.milestones)
@@ -216,3 +238,31 @@ def test_scene_searched_from_the_guide_path(g1, scene, no_primitives):
             assert res.feasible, f"{scene} stance {i} ({result.moves[i - 1]}): {res.violated}"
     assert np.linalg.norm(qs[-1][:3] - path.milestones[-1][:3]) <= load_settings().contact_search.goal_tolerance + 0.02
     assert any(s.hold(h) is not None for s in stances for h in ("left_hand", "right_hand"))
+
+
+def test_a_detour_back_to_an_earlier_contact_set_is_cut_from_the_sequence():
+    """narrow_passage's search put a hand on the wall at one milestone and took it off at the next
+    (a set is expanded once per milestone): the extracted sequence keeps the earlier node and drops
+    the moves in between; the stances stay one hold apart and a dropped node points to its stand-in."""
+    from climb_core.contact import ContactPoint, Hold, Stance
+
+    def hold(limb, surface, x):
+        return Hold(limb, limb + "_sole", surface, (ContactPoint([x, 0.0, 0.0], [0.0, 0.0, 1.0]),), 0.8)
+
+    lf, rf = hold("left_foot", "ground", 0.0), hold("right_foot", "ground", 0.0)
+    rf2, hand = hold("right_foot", "incline", 0.3), hold("right_hand", "wall", 0.3)
+    lf2 = hold("left_foot", "incline", 0.5)
+    stances = [Stance((lf, rf)), Stance((lf,)), Stance((lf, rf2)), Stance((rf2,)), Stance((rf2, hand)),
+               Stance((rf2,)), Stance((rf2, lf2))]
+    nodes = []
+    for k, st in enumerate(stances):
+        nodes.append(cs.Node(st, np.full(3, float(k)), nodes[-1] if nodes else None, f"m{k}"))
+    kept = cs.without_detours(nodes)
+    assert [int(n.q[0]) for n in kept] == [0, 1, 2, 3, 6]
+    assert nodes[4].kept_as is nodes[3] and nodes[5].kept_as is nodes[3] and nodes[2].kept_as is None
+    for a, b in zip(kept, kept[1:]):
+        added, removed = cs.transition_changes(a.stance, b.stance)
+        assert len(added) + len(removed) == 1
+    # a later return to the start drops everything since, the start's configuration stays
+    back = cs.without_detours(nodes[:2] + [cs.Node(stances[0], np.full(3, 9.0), nodes[1], "back")])
+    assert len(back) == 1 and back[0] is nodes[0]

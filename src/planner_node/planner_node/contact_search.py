@@ -27,7 +27,11 @@ other:
   ``goal_tolerance``; a popped node whose limbs are in place but whose base is not is *settled*
   first (the IK stops at its first feasible iterate, near its seed: the settling call runs it to
   convergence toward the milestone, then the frozen check decides); the next milestone is
-  searched from the node that reached this one; after the last one the
+  searched from the node that reached this one; an intermediate milestone that
+  ``milestone_max_nodes`` expansions do not reach (or whose queue runs dry) is given up and the
+  next one is targeted from the same node (``milestones_skipped``: the guide path's free-flyer may
+  hover where no contact set holds it - car_ingress's base 0.3 m above the ground in front of the
+  sill); after the last one the
   stance sequence and the transition configurations are read back up the tree
   (:class:`~climb_core.contact.ContactPlan`: consecutive stances differ by exactly one hold).
 
@@ -201,6 +205,7 @@ class Node:
     distance: float = math.inf  # [m] configuration distance to the milestone it was pushed for
     base_distance: float = math.inf  # [m] its free-flyer term (base position and rotation)
     limb_distances: dict[str, float] = field(default_factory=dict)  # [m] limb -> distance to its milestone place
+    kept_as: "Node | None" = field(default=None, repr=False)  # the node that stands for it after without_detours
 
 
 @dataclass
@@ -215,6 +220,7 @@ class SearchStats:
     skipped_visited: int = 0
     time_s: float = 0.0
     milestones_reached: int = 0
+    milestones_skipped: list[int] = field(default_factory=list)  # intermediate milestones given up (their budget)
 
     @property
     def ik_calls_per_s(self) -> float:
@@ -226,7 +232,8 @@ class SearchStats:
                 "ik_calls_per_s": round(self.ik_calls_per_s, 2), "ik_time_s": round(self.ik_time_s, 3),
                 "pruned_by_reach": self.pruned_by_reach, "pruned_by_rank": self.pruned_by_rank,
                 "skipped_visited": self.skipped_visited,
-                "milestones_reached": self.milestones_reached, "time_s": round(self.time_s, 3)}
+                "milestones_reached": self.milestones_reached, "milestones_skipped": list(self.milestones_skipped),
+                "time_s": round(self.time_s, 3)}
 
 
 @dataclass
@@ -265,6 +272,9 @@ class _Search:
         self.stats = SearchStats()
         self.t0 = time.perf_counter()
         self.best: tuple[float, float] = (math.inf, math.inf)  # closest (configuration, base) distance [m]
+        self.milestone_t0 = self.t0  # the targeted milestone's start (its own budget)
+        self.milestone_nodes0 = 0
+        self.last = False
 
     def target(self, q: np.ndarray) -> _Target:
         limbs = self.kin.limb_positions(q)
@@ -278,6 +288,9 @@ class _Search:
             return "time_limit"
         if self.stats.nodes_expanded >= self.params.max_nodes:
             return "node_budget"
+        cap = self.params.milestone_max_nodes
+        if cap and not self.last and self.stats.nodes_expanded - self.milestone_nodes0 >= cap:
+            return "milestone_budget"
         return ""
 
     # ---- IK
@@ -424,6 +437,7 @@ class _Search:
         """Best-first search from ``root`` until a node reaches ``target`` (``after``: the next
         milestone, None for the last)."""
         counter = 0
+        self.milestone_nodes0 = self.stats.nodes_expanded
         queue: list[tuple[float, int, Node]] = []
         heapq.heappush(queue, (self._priority(root, target, after), counter, root))
         seen = {stance_key(root.stance, self.params.key_resolution)}
@@ -432,6 +446,8 @@ class _Search:
         self.last = after is None
         while queue:
             reason = self._out_of_budget()
+            if reason == "milestone_budget":
+                raise _GiveUpMilestone(reason)
             if reason:
                 self._fail(reason, index)
             _, _, node = heapq.heappop(queue)
@@ -458,6 +474,8 @@ class _Search:
                 self.best = min(self.best, (child.distance, child.base_distance))
                 heapq.heappush(queue, (prio, counter, child))
                 self.stats.nodes_pushed += 1
+        if not self.last:
+            raise _GiveUpMilestone("exhausted")
         self._fail("exhausted", index)
         raise AssertionError  # unreachable
 
@@ -505,7 +523,11 @@ def search(robot: Any, env: Any, q_start: np.ndarray, stance_start: Stance, path
     reached: list[Node] = []
     targets = [s.target(np.asarray(m, dtype=float)) for m in path.milestones]
     for i, target in enumerate(targets):
-        node = s.to_milestone(node, target, i, targets[i + 1] if i + 1 < len(targets) else None)
+        try:
+            node = s.to_milestone(node, target, i, targets[i + 1] if i + 1 < len(targets) else None)
+        except _GiveUpMilestone:  # an intermediate milestone no contact set gets to: on to the next one
+            s.stats.milestones_skipped.append(i)
+            continue
         reached.append(node)
         s.stats.milestones_reached = i + 1
     s.stats.time_s = time.perf_counter() - s.t0
@@ -515,10 +537,41 @@ def search(robot: Any, env: Any, q_start: np.ndarray, stance_start: Stance, path
         chain.append(n)
         n = n.parent
     chain.reverse()
+    chain = without_detours(chain)
     index = {id(n): k for k, n in enumerate(chain)}
+    index.update({id(n): index[id(n.kept_as)] for n in reached if id(n) not in index})
     plan = ContactPlan(robot=robot.config.name, environment=env.name, joint_names=list(robot.joint_names),
                        stances=[n.stance for n in chain], transition_configurations=[n.q.copy() for n in chain])
     return SearchResult(plan, [n.move for n in chain[1:]], s.stats, [index[id(n)] for n in reached])
+
+
+class _GiveUpMilestone(Exception):
+    """An intermediate milestone's own node budget spent (or its queue empty) without reaching it."""
+
+
+def without_detours(chain: list[Node]) -> list[Node]:
+    """``chain`` without the detours that come back to a contact set already in it: from each
+    node whose stance equals an earlier one's (the same holds), back to that earlier node, which
+    stays with its configuration. The search expands each set once per milestone only, so the
+    extracted sequence can add a contact at one milestone and take it off again at the next: on
+    narrow_passage a hand went onto the wall and off while a foot was in the air, two moves for
+    nothing that the adaptation then had to make whole-body. Consecutive stances still differ by
+    exactly one hold. A dropped node's ``kept_as`` is the node that stands for it."""
+    kept: list[Node] = []
+    for n in chain:
+        for k, m in enumerate(kept):
+            added, removed = transition_changes(m.stance, n.stance)
+            if not added and not removed:
+                for d in kept[k + 1:] + [n]:
+                    d.kept_as = m
+                kept = kept[:k + 1]
+                break
+        else:
+            kept.append(n)
+    for n in chain:  # a node dropped with the detour of a node dropped later
+        while n.kept_as is not None and n.kept_as.kept_as is not None:
+            n.kept_as = n.kept_as.kept_as
+    return kept
 
 
 def transition_changes(before: Stance, after: Stance) -> tuple[list[Hold], list[Hold]]:
@@ -533,4 +586,4 @@ def transition_changes(before: Stance, after: Stance) -> tuple[list[Hold], list[
 
 
 __all__ = ["search", "SearchResult", "SearchStats", "Node", "configuration_distance", "accepting_surfaces",
-           "limb_reach", "surface_distance", "stance_key", "transition_changes", "limb_type"]
+           "limb_reach", "surface_distance", "stance_key", "transition_changes", "without_detours", "limb_type"]
