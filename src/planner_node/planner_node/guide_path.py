@@ -14,9 +14,6 @@ A state is *valid* when
   surface's closest point (a foot: the surface's upward face) is at most ``reach_fraction`` times
   the limb's length (the sum of its joint-to-joint segments down to the contact surface centre,
   computed from the model once);
-- no sole of the state's posture lies inside a box accepting feet deeper than ``sole_sink`` under
-  its top face (a free-flyer "standing" in a floor or a seat would ask the search for a stance no
-  leg can take: car_ingress's path went over the driver's seat with the feet inside it);
 - the free-flyer body (the postures file's ``body_links`` in the state's posture) keeps ``body_clearance``
   from every environment surface (coal, on the collision checker's hulls; bounding spheres cull
   the far pairs; the limbs are left to the contact search, which places them).
@@ -24,8 +21,8 @@ A state is *valid* when
 RRT-Connect (Kuffner and LaValle 2000) grows a tree from the start configuration and one from a
 goal configuration (sampled within the goal tolerance). Each random sample is biased toward the
 reference postures and toward facing the goal, then *projected*: its root moves down by
-``projection_step`` until the criterion holds (at most ``max_drop``), and is rejected when a sole
-is sunk there or the body collides there and ``projection_collision_tries - 1`` steps below. Edges are linear
+``projection_step`` until the criterion holds (at most ``max_drop``), and is rejected when the
+body collides there and ``projection_collision_tries - 1`` steps below. Edges are linear
 interpolations checked every ``edge_resolution``; the path is shortcut, then cut into milestones
 at most ``milestone_spacing`` apart. A ladder climb targets the standing-on-rung-k base positions
 in turn (:func:`ladder_goal_position`), one rung apart.
@@ -277,10 +274,6 @@ class GuidePlanner:
         self.n_post = len(self.postures.names)
         self._limb_roots, self._limb_lengths = self._limbs()
         self._surfaces = {k: _surface_set(contact_surfaces(env, k), top_only=(k == "foot")) for k in ("foot", "hand")}
-        feet = self._surfaces["foot"]
-        self._boxes = np.flatnonzero(~feet.cylinder)  # the foot surfaces a sole may sink into
-        self._soles = [(robot.frame_id(robot.config.limbs[l].surface.frame), np.asarray(robot.config.limbs[l].surface.centre))
-                       for l in robot.config.limbs if l in FEET]
         self.checker = checker(robot, env)
         links = set(self.postures.body_links)
         unknown = links - {self.checker.geom_link[i] for i in range(self.checker.n_robot)}
@@ -363,28 +356,6 @@ class GuidePlanner:
         good = len(reached) >= self.params.min_supporting_limbs and feet >= self.params.min_supporting_feet
         return SupportReport(good, reached, com)
 
-    def sunk(self, q: np.ndarray) -> str:
-        """The foot surface (a box) that a sole of configuration q lies inside deeper than
-        ``sole_sink`` below its top face, "" when none: the posture's legs are left to the contact
-        search, but a free-flyer standing in a floor, a seat or a step asks for a stance no leg can
-        take (after :meth:`support`, which ran the kinematics of q)."""
-        feet = self._surfaces["foot"]
-        if not len(self._boxes):
-            return ""
-        m = self._boxes
-        for fid, centre in self._soles:
-            pin.updateFramePlacement(self.model, self.data, fid)
-            x = self.data.oMf[fid].act(centre)
-            local = np.einsum("mji,mj->mi", feet.R[m], x[None] - feet.p[m])
-            half = feet.half[m]
-            inside = np.all(np.abs(local) <= half, axis=1)
-            up = local[np.arange(len(m)), feet.up_axis[m]] * feet.up_sign[m]
-            depth = half[np.arange(len(m)), feet.up_axis[m]] - up
-            hit = np.flatnonzero(inside & (depth > self.params.sole_sink))
-            if len(hit):
-                return feet.names[int(m[hit[0]])]
-        return ""
-
     def _build_collision(self) -> None:
         """The body's pairs in a small geometry model, with bounding spheres for culling."""
         query = self.checker.pair_query(self.body_pairs)
@@ -445,12 +416,10 @@ class GuidePlanner:
         return best, pair
 
     def valid(self, x: np.ndarray, stats: GuideStats | None = None) -> str:
-        """"" when state x is valid, else "unsupported", "sunk" or "collision"."""
+        """"" when state x is valid, else "unsupported" or "collision"."""
         q = self.configuration(x)
         if not self.support(x, q).ok:
             return "unsupported"
-        if self.sunk(q):
-            return "sunk"
         if stats is not None:
             stats.collision_checks += 1
         return "" if self.clearance(q)[0] >= self.params.body_clearance else "collision"
@@ -470,9 +439,6 @@ class GuidePlanner:
         while x[2] >= max(z0 - p.max_drop, floor) - 1e-12:
             q = self.configuration(x)
             if self.support(x, q).ok:
-                if self.sunk(q):  # lower only sinks deeper
-                    reason = "sunk"
-                    break
                 if stats is not None:
                     stats.collision_checks += 1
                 if self.clearance(q)[0] >= p.body_clearance:
@@ -574,7 +540,7 @@ class _Search:
             self.stats.reasons[reason] = self.stats.reasons.get(reason, 0) + 1
             if reason == "unsupported":
                 self.stats.unsupported += 1
-            elif reason == "collision":
+            else:
                 self.stats.in_collision += 1
         return y
 

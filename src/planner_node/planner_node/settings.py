@@ -157,7 +157,7 @@ class ContactSearchParams:
 
     time_limit_s: float = param(180.0, unit="s", min=0.1, description=(
         "wall-time limit of one search (all milestones; narrow_passage takes 85 s on this machine)"))
-    max_nodes: int = param(400, unit="-", min=1, description="node budget: contact sets expanded in one search")
+    max_nodes: int = param(800, unit="-", min=1, description="node budget: contact sets expanded in one search (car_ingress: 459)")
     milestone_max_nodes: int = param(150, unit="-", min=0, description=(
         "an intermediate milestone not reached after this many expansions is given up and the next one targeted from "
         "the same node (0: never; a guide path's free-flyer may hover where no stance holds it)"))
@@ -207,9 +207,6 @@ class GuidePathParams:
     min_supporting_feet: int = param(1, unit="-", min=0, max=2, description="... of which feet (on a surface below the CoM)")
     foot_below_com: float = param(0.3, unit="m", min=0.0, description=(
         "a supporting foot's surface point lies at least this far below the CoM"))
-    sole_sink: float = param(0.03, unit="m", min=0.0, description=(
-        "a state whose posture puts a sole deeper than this inside a box that accepts feet (under its top face, "
-        "within its outline) is invalid: the free-flyer stands above the surfaces, not in them"))
     step_size: float = param(0.3, unit="m", min=0.01, description="RRT-Connect extension step (state metric)")
     edge_resolution: float = param(0.05, unit="m", min=0.005, description=(
         "linear-interpolation steering: states checked at most this far apart (state metric)"))
