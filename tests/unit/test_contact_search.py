@@ -203,8 +203,8 @@ def test_guide_path_of_another_robot_is_refused(g1, env):
 
 
 @pytest.mark.skipif(os.environ.get("CLIMB_SLOW_TESTS") != "1",
-                    reason="scene searches take 40-90 s each: set CLIMB_SLOW_TESTS=1")
-@pytest.mark.parametrize("scene", ["stairs_handrail", "narrow_passage"])
+                    reason="scene searches take 20-120 s each: set CLIMB_SLOW_TESTS=1")
+@pytest.mark.parametrize("scene", ["stairs_handrail", "narrow_passage", "car_ingress"])
 def test_scene_searched_from_the_guide_path(g1, scene, no_primitives):
     """A shipped scene: feet on the surfaces under them at the start pose, the guide path to the
     scene's goal, then the search; every added contact's configuration passes the frozen check,
