@@ -272,8 +272,7 @@ class _Search:
         self.stats = SearchStats()
         self.t0 = time.perf_counter()
         self.best: tuple[float, float] = (math.inf, math.inf)  # closest (configuration, base) distance [m]
-        self.milestone_t0 = self.t0  # the targeted milestone's start (its own budget)
-        self.milestone_nodes0 = 0
+        self.milestone_nodes0 = 0  # nodes expanded when the targeted milestone's search began (its own budget)
         self.last = False
 
     def target(self, q: np.ndarray) -> _Target:

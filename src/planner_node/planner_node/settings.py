@@ -157,7 +157,7 @@ class ContactSearchParams:
 
     time_limit_s: float = param(180.0, unit="s", min=0.1, description=(
         "wall-time limit of one search (all milestones; narrow_passage takes 85 s on this machine)"))
-    max_nodes: int = param(800, unit="-", min=1, description="node budget: contact sets expanded in one search (car_ingress: 459)")
+    max_nodes: int = param(800, unit="-", min=1, description="node budget: contact sets expanded in one search (car_ingress: 292)")
     milestone_max_nodes: int = param(150, unit="-", min=0, description=(
         "an intermediate milestone not reached after this many expansions is given up and the next one targeted from "
         "the same node (0: never; a guide path's free-flyer may hover where no stance holds it)"))
