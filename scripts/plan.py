@@ -228,8 +228,7 @@ def run_search(args: argparse.Namespace, settings):
                                    rungs=max(1, args.steps), seed=args.seed, timeout_s=args.timeout, strategy="search")
     problem = pipeline.Problem(request, robot, scenario, env, None, settings, start=start)
     guide = pipeline.guide_path(problem, strategy="search")
-    contacts = pipeline.contact_search(problem, guide.product, strategy="search")
-    result, _ = pipeline.adapt(problem, contacts.product, strategy="search")
+    contacts, result, _ = pipeline.search_and_adapt(problem, guide.product)
     extra: dict = {"strategy": "search", "guide_path": guide.summary,
                    "contact_search": {k: v for k, v in contacts.summary.items() if k != "moves"},
                    "moves": contacts.summary["moves"]}

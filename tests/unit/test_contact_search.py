@@ -144,6 +144,21 @@ def test_deterministic(g1, env, no_primitives):
     assert {last.hold(f).env_surface for f in FEET} == {"rung_2"}
 
 
+def test_a_banned_transition_is_not_made_again(g1, env, no_primitives):
+    """The repair of a stuck adaptation (pipeline.search_and_adapt) searches again without the
+    transition it could not make whole-body: the new sequence leaves that stance by another move."""
+    q0, stance0, path = ladder_path(g1, env, 1)
+    key = load_settings().contact_search.key_resolution
+    first = cs.search(g1, env, q0, stance0, path)
+    ban = cs.banned_transition(first.plan, 0, key)
+    assert ban == (cs.stance_key(first.plan.stances[0], key), cs.stance_key(first.plan.stances[1], key))
+    again = cs.search(g1, env, q0, stance0, path, banned=[ban])
+    assert again.stats.skipped_banned >= 1
+    pairs = [cs.banned_transition(again.plan, i, key) for i in range(len(again.moves))]
+    assert ban not in pairs and again.moves[0] != first.moves[0]
+    assert {again.plan.stances[-1].hold(f).env_surface for f in FEET} == {"rung_2"}
+
+
 def test_out_of_reach_milestone_fails_from_the_search_within_its_time_limit(g1, env, no_primitives):
     """A milestone 2 m to the side of the ladder, in the air: collision-free, no surface within
     reach of its limbs. The search runs out of its time limit and says how far it got."""

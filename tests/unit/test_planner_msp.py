@@ -121,3 +121,54 @@ def test_a_fatal_failure_stops_the_search_at_once():
     assert not rep.success
     assert rep.failure_constraint == "hold:hold.env_surface"
     assert calls == [("step", 0), ("step", 0), ("grasp_tread", 0)]  # no backtracking
+
+
+def test_backtrack_window_stops_a_search_whose_frontier_fails_from_every_predecessor():
+    # sub-task 5 fails whatever the state: unbounded, the search backtracks through 3^5 branches;
+    # with a window of 1 it tries sub-task 4's other attempts (each followed by sub-task 5's
+    # three) and stops there, stuck, naming the frontier's constraint
+    def attempt(subtask, state, j, rng):
+        if subtask == 5:
+            return AttemptFailure("friction")
+        return Step(state + 1, segment=state)
+
+    unbounded = multi_step_search(0, list(range(7)), attempt, m=3)
+    assert not unbounded.success and not unbounded.stuck
+    assert unbounded.n_attempts == sum(3 ** k for k in range(1, 7))  # every branch to sub-task 5
+    rep = multi_step_search(0, list(range(7)), attempt, m=3, backtrack_window=1)
+    assert not rep.success and rep.stuck
+    assert rep.deepest == 5 and rep.failure_constraint == "friction"
+    assert rep.n_attempts == 5 + 3 + 2 * (1 + 3)  # down to 5, its 3, then sub-task 4's two others
+    assert len(rep.segments) == 5  # the best partial branch
+    # a window wide enough for the branch that works finds it
+    def attempt_dead_end(subtask, state, j, rng):  # sub-task 3 fails after sub-task 1's first attempt
+        if subtask == 1:
+            return Step("bad" if j == 0 else "good", segment=j)
+        if subtask == 3 and state == "bad":
+            return AttemptFailure("reach")
+        return Step(state, segment=subtask)
+
+    assert not multi_step_search(0, list(range(5)), attempt_dead_end, m=2, backtrack_window=1).success
+    found = multi_step_search(0, list(range(5)), attempt_dead_end, m=2, backtrack_window=2)
+    assert found.success and not found.stuck
+    with pytest.raises(ValueError, match="backtrack_window"):
+        multi_step_search(0, [1], attempt, backtrack_window=-1)
+
+
+def test_a_prefix_made_before_is_kept_and_not_backtracked_into():
+    calls = []
+
+    def attempt(subtask, state, j, rng):
+        calls.append((subtask, state))
+        if subtask == 3 and state == 12:  # fails from the state the prefix leads to
+            return AttemptFailure("collision:knee|step")
+        return Step(state + 1, segment=f"s{subtask}")
+
+    prefix = [("p0", 10), ("p1", 11)]
+    rep = multi_step_search(0, list(range(4)), attempt, m=2, prefix=prefix)
+    assert calls[0] == (2, 11)  # starts after the prefix, from its last state
+    assert not rep.success and not rep.stuck and all(i >= 2 for i, _, _ in rep.trace)
+    assert rep.deepest == 3 and rep.segments[:2] == ["p0", "p1"] and rep.states[:2] == [10, 11]
+    assert multi_step_search(0, list(range(4)), attempt, m=2, prefix=prefix, backtrack_window=4).stuck
+    ok = multi_step_search(0, list(range(4)), attempt, m=2, prefix=[("p0", 20), ("p1", 21)])
+    assert ok.success and ok.segments == ["p0", "p1", "s2", "s3"] and ok.states == [20, 21, 22, 23]

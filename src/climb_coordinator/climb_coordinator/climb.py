@@ -178,11 +178,10 @@ class SearchPlanSource:
             path = pipeline.guide_path(problem, strategy="search").product
             stages["guide_path"] = time.perf_counter() - t
             t = time.perf_counter()
-            contact_plan = pipeline.contact_search(problem, path, strategy="search").product
-            stages["contact_search"] = time.perf_counter() - t
-            t = time.perf_counter()
-            res, _ = pipeline.adapt(problem, contact_plan, strategy="search")
-            stages["adaptation"] = time.perf_counter() - t
+            contacts, res, _ = pipeline.search_and_adapt(problem, path)  # repaired where stuck
+            contact_plan = contacts.product
+            stages["contact_search"] = float(contacts.summary["time_s"])  # the last search
+            stages["adaptation"] = time.perf_counter() - t - stages["contact_search"]
         except ClimbError as exc:  # InfeasibleError / SpecError of a stage: the plan failed, said why
             return PlanOutcome(False, None, time.perf_counter() - t0, failure=str(exc), stages_s=stages)
         ok = bool(res.success and res.plan is not None)

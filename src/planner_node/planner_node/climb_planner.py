@@ -40,6 +40,8 @@ class ClimbPlanResult:
     final_state: ClimbState | None
     stats: dict = field(default_factory=dict)
     segments: list[Segment] = field(default_factory=list)
+    #: a contact plan's adaptation: its sub-tasks (ContactStep.pair: the stance pair each makes)
+    contact_steps: list = field(default_factory=list)
 
     @property
     def n_stances(self) -> int:
@@ -235,6 +237,7 @@ class ContactStep:
     q_end: np.ndarray  # the contact plan's transition configuration of the next stance
     unload: tuple[str, ...] = ()  # generic CoM shift / release: limbs that must be removable at its end
     keep: tuple[str, ...] = ()  # limbs freed for good by an earlier step: their joints stay as they are
+    pair: int = -1  # i: the step makes the contact plan's change from stance i to stance i + 1
 
 
 def _same_hold(a, b) -> bool:
@@ -271,7 +274,9 @@ def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[Con
         changes.append(changed[0] if changed else "")
     steps = []
     released: dict[str, Any] = {}  # limb -> hold released by the plan, still held until the limb moves
+    first_step: list[int] = []  # per stance pair: index of its first step
     for i, (a, b) in enumerate(zip(plan.stances[:-1], plan.stances[1:])):
+        first_step.append(len(steps))
         q_end = np.asarray(plan.transition_configurations[i + 1], dtype=float)
         limb = changes[i]
         nxt = changes[i + 1] if i + 1 < len(changes) else ""
@@ -311,11 +316,24 @@ def contact_plan_steps(library: PrimitiveLibrary, plan: ContactPlan) -> list[Con
         steps.append(ContactStep(f"{name}_{i}", "limb", prim, limb, new, q_end))
     # every step after a limb's release for good keeps that limb's posture
     out, kept = [], ()
-    for st in steps:
-        out.append(dc.replace(st, keep=kept) if kept else st)
+    for k, st in enumerate(steps):
+        pair = max(i for i, first in enumerate(first_step) if first <= k)
+        out.append(dc.replace(st, keep=kept, pair=pair))
         if st.kind == "free":
             kept = kept + (st.limb,)
     return out
+
+
+def _same_step(a: ContactStep, b: ContactStep) -> bool:
+    """The same sub-task: kind, limb, hold, primitive and end configuration (a repaired contact
+    plan shares its first sub-tasks with the plan it repairs)."""
+    if (a.kind, a.limb, a.unload, a.keep) != (b.kind, b.limb, b.unload, b.keep):
+        return False
+    if (a.primitive is None) != (b.primitive is None) or (a.primitive is not None and a.primitive.name != b.primitive.name):
+        return False
+    if not _same_hold(a.hold, b.hold):
+        return False
+    return a.q_end.shape == b.q_end.shape and bool(np.allclose(a.q_end, b.q_end, atol=1e-9))
 
 
 def _adapt_contact_step(ctx: AdaptContext, step: ContactStep, state: ClimbState, attempt: int,
@@ -348,11 +366,15 @@ def plan_from_contact_plan(robot: Any, env: Any, contact_plan: ContactPlan, *,
                            library: PrimitiveLibrary | None = None, settings: PlannerSettings | None = None,
                            seed: int | None = None, timeout_s: float | None = None,
                            feasibility_cfg: feasibility.FeasibilityConfig | None = None,
-                           on_progress: Callable[[int, int, int], None] | None = None) -> ClimbPlanResult:
+                           on_progress: Callable[[int, int, int], None] | None = None,
+                           previous: ClimbPlanResult | None = None) -> ClimbPlanResult:
     """Whole-body paths for a contact plan's stance sequence: each transition adapted from the
     library primitive of that limb (ending at the plan's hold, seeded by its configuration), or a
     generic contact-body path where none fits (:func:`contact_plan_steps`). Without a library on
-    disk every step is generic; ``library=contact_path.empty_library(robot)`` forces that."""
+    disk every step is generic; ``library=contact_path.empty_library(robot)`` forces that.
+    ``previous``: the adaptation of a plan this one repairs (pipeline.search_and_adapt): the
+    sub-tasks both share, up to ``contact_path.backtrack_window`` before the first that differs,
+    are kept as made there instead of being adapted again."""
     from . import contact_path
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -370,10 +392,18 @@ def plan_from_contact_plan(robot: Any, env: Any, contact_plan: ContactPlan, *,
     steps = contact_plan_steps(library, contact_plan)
     ctx = AdaptContext(robot, env, library, settings, feasibility_cfg)
     state0 = ClimbState(np.asarray(contact_plan.transition_configurations[0], dtype=float), contact_plan.stances[0])
+    window = settings.contact_path.backtrack_window
+    prefix: list = []
+    if previous is not None and previous.report is not None:
+        shared = next((k for k, (a, b) in enumerate(zip(previous.contact_steps, steps)) if not _same_step(a, b)),
+                      min(len(previous.contact_steps), len(steps)))
+        keep = max(0, min(shared, len(previous.report.states)) - max(window, 0))
+        prefix = [(previous.segments[k], previous.report.states[k]) for k in range(keep)]
     report = msp.multi_step_search(state0, steps, lambda st, s, j, rng: _adapt_contact_step(ctx, st, s, j, rng),
                                    m=p.attempts_per_subtask, seed=p.seed if seed is None else seed,
                                    time_limit_s=p.timeout_s if timeout_s is None else timeout_s,
-                                   on_progress=on_progress)
+                                   on_progress=on_progress, backtrack_window=window if window >= 0 else None,
+                                   prefix=prefix)
     segments = list(report.segments)
     transitions = [s.transition for s in segments if s.transition is not None]
     plan = WholeBodyPlan(robot=robot.config.name, environment=env.name, joint_names=list(robot.joint_names),
@@ -383,4 +413,5 @@ def plan_from_contact_plan(robot: Any, env: Any, contact_plan: ContactPlan, *,
                            failure_constraint=report.failure_constraint, failure_detail=report.failure_detail,
                            plan_time_s=time.perf_counter() - t0, plan_cpu_s=time.process_time() - c0,
                            subtasks=[s.name for s in steps], report=report,
-                           final_state=report.final_state, stats=stats, segments=segments)
+                           final_state=report.final_state, stats=stats, segments=segments,
+                           contact_steps=steps)

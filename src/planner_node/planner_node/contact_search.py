@@ -66,7 +66,7 @@ import heapq
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Collection
 
 import numpy as np
 import pinocchio as pin
@@ -218,6 +218,7 @@ class SearchStats:
     pruned_by_reach: int = 0
     pruned_by_rank: int = 0
     skipped_visited: int = 0
+    skipped_banned: int = 0
     time_s: float = 0.0
     milestones_reached: int = 0
     milestones_skipped: list[int] = field(default_factory=list)  # intermediate milestones given up (their budget)
@@ -231,7 +232,7 @@ class SearchStats:
                 "ik_calls": self.ik_calls, "ik_failures": self.ik_failures,
                 "ik_calls_per_s": round(self.ik_calls_per_s, 2), "ik_time_s": round(self.ik_time_s, 3),
                 "pruned_by_reach": self.pruned_by_reach, "pruned_by_rank": self.pruned_by_rank,
-                "skipped_visited": self.skipped_visited,
+                "skipped_visited": self.skipped_visited, "skipped_banned": self.skipped_banned,
                 "milestones_reached": self.milestones_reached, "milestones_skipped": list(self.milestones_skipped),
                 "time_s": round(self.time_s, 3)}
 
@@ -242,6 +243,11 @@ class SearchResult:
     moves: list[str]  # per stance after the first: "add:<limb>@<surface>" / "remove:<limb>@<surface>"
     stats: SearchStats
     milestone_nodes: list[int] = field(default_factory=list)  # index in plan.stances where each milestone was reached
+
+
+def banned_transition(plan: ContactPlan, i: int, resolution: float) -> tuple[frozenset, frozenset]:
+    """The change from ``plan.stances[i]`` to ``plan.stances[i + 1]`` as ``search(banned=...)`` takes it."""
+    return stance_key(plan.stances[i], resolution), stance_key(plan.stances[i + 1], resolution)
 
 
 def stance_key(stance: Stance, resolution: float) -> frozenset:
@@ -256,8 +262,9 @@ def stance_key(stance: Stance, resolution: float) -> frozenset:
 
 class _Search:
     def __init__(self, robot: Any, env: Any, params: ContactSearchParams, pcik_params: PCIKParams | None,
-                 feasibility_cfg: feasibility.FeasibilityConfig | None):
+                 feasibility_cfg: feasibility.FeasibilityConfig | None, banned: Collection[tuple] = ()):
         self.robot, self.env, self.params = robot, env, params
+        self.banned = frozenset(banned)
         if params.ik_floating_weight > 0.0:  # the added contact lands at its milestone place
             pcik_params = dataclasses.replace(pcik_params, floating_weight=params.ik_floating_weight)
         if params.ik_max_iterations > 0:
@@ -365,6 +372,8 @@ class _Search:
                 if res is None or limb not in res.holds:
                     continue
                 child = Stance(stance.holds + (res.holds[limb],), name=f"add:{limb}@{sf.name}")
+                if self._banned(stance, child):
+                    continue
                 out.append((Node(child, res.q, node, f"add:{limb}@{sf.name}", node.depth + 1), (limb, preferred)))
                 if np.linalg.norm(res.holds[limb].centre - preferred) <= self.params.key_resolution:
                     # the limb landed at its milestone place: a farther surface would not rank better
@@ -376,6 +385,8 @@ class _Search:
                 if stance_key(child, self.params.key_resolution) in seen:
                     self.stats.skipped_visited += 1
                     continue
+                if self._banned(stance, child):
+                    continue
                 if self._out_of_budget():
                     return out
                 contacts = [c if c.limb != h.limb else pcik.ContactSpec(h.limb, pcik.ZERO_FORCE, hold=h)
@@ -386,6 +397,15 @@ class _Search:
                 child = Stance(child.holds, name=f"remove:{h.limb}@{h.env_surface}")
                 out.append((Node(child, res.q, node, f"remove:{h.limb}@{h.env_surface}", node.depth + 1), None))
         return out
+
+    def _banned(self, stance: Stance, child: Stance) -> bool:
+        if not self.banned:
+            return False
+        r = self.params.key_resolution
+        if (stance_key(stance, r), stance_key(child, r)) in self.banned:
+            self.stats.skipped_banned += 1
+            return True
+        return False
 
     def _reached(self, node: Node, target: _Target, after: _Target | None) -> bool:
         """A guide-path milestone places the free-flyer (base), the search places the limbs: the
@@ -492,7 +512,8 @@ class _Search:
 
 def search(robot: Any, env: Any, q_start: np.ndarray, stance_start: Stance, path: GuidePath,
            params: ContactSearchParams | None = None, *, pcik_params: PCIKParams | None = None,
-           feasibility_cfg: feasibility.FeasibilityConfig | None = None) -> SearchResult:
+           feasibility_cfg: feasibility.FeasibilityConfig | None = None,
+           banned: Collection[tuple] = ()) -> SearchResult:
     """The stance sequence from (``q_start``, ``stance_start``) through the milestones of ``path``.
 
     The first milestone is skipped when the start is already within tolerance of it (a guide path
@@ -500,7 +521,9 @@ def search(robot: Any, env: Any, q_start: np.ndarray, stance_start: Stance, path
     ``contact_search``; ``pcik_params`` to its ``pcik``; ``feasibility_cfg`` to the frozen
     config/feasibility.yaml. InfeasibleError ``contact_search:<reason>`` (time_limit,
     node_budget, exhausted) when a milestone is not reached; SpecError for a guide path of another
-    robot or an empty one."""
+    robot or an empty one. ``banned``: transitions not to make, pairs of :func:`stance_key` (from,
+    to) (:func:`banned_transition`: a transition whose whole-body path the adaptation could not
+    build)."""
     from .settings import load_settings
 
     settings = None
@@ -517,7 +540,7 @@ def search(robot: Any, env: Any, q_start: np.ndarray, stance_start: Stance, path
     for i, m in enumerate(path.milestones):
         if np.asarray(m).shape != (nq,) or not np.isfinite(m).all():
             raise SpecError(f"guide_path.milestones[{i}]", f"must be {nq} finite numbers")
-    s = _Search(robot, env, params, pcik_params, feasibility_cfg)
+    s = _Search(robot, env, params, pcik_params, feasibility_cfg, banned)
     node = Node(stance_start, np.asarray(q_start, dtype=float).copy())
     reached: list[Node] = []
     targets = [s.target(np.asarray(m, dtype=float)) for m in path.milestones]

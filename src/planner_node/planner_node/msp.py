@@ -3,7 +3,12 @@
 A depth-first search over a fixed sequence of sub-tasks (one motion primitive each). Every
 sub-task gets up to ``m`` adaptation attempts from the state its predecessor reached; a success
 recurses into the next sub-task, a sub-task whose ``m`` attempts all fail (directly or through
-their descendants) sends the search back to its predecessor's next attempt (backtracking).
+their descendants) sends the search back to its predecessor's next attempt (backtracking). With a
+``backtrack_window`` W the search stops instead when the sub-task W below the frontier (the
+deepest sub-task reached) has exhausted its attempts, or when every branch is (``SearchReport.stuck``;
+0: no backtracking past the frontier): on a long sequence of generic steps
+(a searched contact plan of 60 stances) a transition that no predecessor state makes feasible
+would otherwise send the search through m^k branches; the caller changes the sequence instead.
 
 The search is problem-agnostic: the caller supplies ``attempt(subtask, state, attempt_index,
 rng)`` returning either a :class:`Step` (success: next state + the path segment that leads there)
@@ -68,6 +73,11 @@ class SearchReport(Generic[S]):
     trace: list[tuple[int, int, bool]] = field(default_factory=list)
     #: (sub-task index, attempt index, AttemptFailure) of every failed attempt
     failure_log: list[tuple[int, int, "AttemptFailure"]] = field(default_factory=list)
+    #: the backtrack window stopped the search (the sub-task ``deepest`` failed from every
+    #: predecessor state tried)
+    stuck: bool = False
+    #: the state after each segment of ``segments``
+    states: list = field(default_factory=list)
 
 
 class _Timeout(Exception):
@@ -75,6 +85,10 @@ class _Timeout(Exception):
 
 
 class _Fatal(Exception):
+    pass
+
+
+class _Stuck(Exception):
     pass
 
 
@@ -92,19 +106,27 @@ def multi_step_search(
     time_limit_s: float | None = None,
     on_progress: Callable[[int, int, int], None] | None = None,
     clock: Callable[[], float] = time.monotonic,
+    backtrack_window: int | None = None,
+    prefix: Sequence[tuple[Any, S]] = (),
 ) -> SearchReport[S]:
     """Depth-first search with backtracking over ``subtasks`` (MSP-Recurse).
+
+    ``prefix``: (segment, state) of the first ``len(prefix)`` sub-tasks, made before (a repaired
+    sequence that shares them): the search starts after them and does not backtrack into them.
 
     ``on_progress(depth, n_subtasks, n_attempts)`` is called after every successful attempt.
     Returns a :class:`SearchReport`; never raises for a failed search.
     """
     if m < 1:
         raise ValueError(f"m must be >= 1 (attempts per sub-task), got {m}")
+    if backtrack_window is not None and backtrack_window < 0:
+        raise ValueError(f"backtrack_window must be >= 0 or None, got {backtrack_window}")
     n = len(subtasks)
     start = clock()
     deadline = None if time_limit_s is None else start + float(time_limit_s)
     report: SearchReport[S] = SearchReport(False, [], initial_state, 0, 0, 0, 0.0)
-    best_partial: list = []
+    best_partial: list = list(prefix)
+    report.deepest = len(prefix)
 
     def recurse(i: int, state: S, branch: list[int], segments: list) -> list | None:
         # i = number of sub-tasks already done along this branch
@@ -137,12 +159,20 @@ def multi_step_search(
             if found is not None:
                 return found
         report.n_backtracks += 1
+        if backtrack_window is not None and report.deepest - i >= backtrack_window:
+            raise _Stuck()
         return None
 
     try:
-        found = recurse(0, initial_state, [], [])
+        found = recurse(len(prefix), prefix[-1][1] if prefix else initial_state, [0] * len(prefix), list(prefix))
+        # every branch exhausted: within a window, that is being stuck too (the first sub-task, or
+        # the first after the prefix, has no attempt left)
+        report.stuck = found is None and backtrack_window is not None
     except _Fatal:
         found = None
+    except _Stuck:
+        found = None
+        report.stuck = True
     except _Timeout:
         found = None
         report.failure_constraint = TIME_LIMIT
@@ -155,6 +185,7 @@ def multi_step_search(
         report.failure_constraint = ""
     chosen = found if found is not None else best_partial
     report.segments = [seg for seg, _ in chosen]
+    report.states = [st for _, st in chosen]
     report.final_state = chosen[-1][1] if chosen else initial_state
     if found is not None:
         return report

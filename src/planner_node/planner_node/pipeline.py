@@ -485,10 +485,11 @@ def _stance_key(stance: Stance) -> list[tuple[str, str, tuple]]:
     return sorted((h.limb, h.env_surface, tuple(np.round(h.centre, 3))) for h in stance.holds)
 
 
-def contact_search_search(problem: Problem, path: GuidePath) -> StageResult:
+def contact_search_search(problem: Problem, path: GuidePath, banned=(), time_limit_s: float | None = None
+                          ) -> StageResult:
     """``strategy: search``: the best-first multi-contact search (:mod:`planner_node.contact_search`)
-    from :func:`search_start` through the guide path's milestones. InfeasibleError
-    ``contact_search:<reason>`` when a milestone is not reached."""
+    from :func:`search_start` through the guide path's milestones, without the ``banned``
+    transitions. InfeasibleError ``contact_search:<reason>`` when a milestone is not reached."""
     import dataclasses
 
     from .contact_search import search
@@ -496,9 +497,11 @@ def contact_search_search(problem: Problem, path: GuidePath) -> StageResult:
     t0 = time.perf_counter()
     q0, stance0 = search_start(problem)
     params = problem.settings.contact_search
-    if problem.request.timeout_s is not None:
-        params = dataclasses.replace(params, time_limit_s=float(problem.request.timeout_s))
-    res = search(problem.robot, problem.env, q0, stance0, path, params, pcik_params=problem.settings.pcik)
+    limit = time_limit_s if time_limit_s is not None else problem.request.timeout_s
+    if limit is not None:
+        params = dataclasses.replace(params, time_limit_s=float(limit))
+    res = search(problem.robot, problem.env, q0, stance0, path, params, pcik_params=problem.settings.pcik,
+                 banned=banned)
     summary = {"strategy": "search", "n_stances": len(res.plan.stances), "moves": res.moves,
                **res.stats.as_dict(), "time_s": round(time.perf_counter() - t0, 3)}
     return StageResult(res.plan, summary)
@@ -584,7 +587,8 @@ def _check_summary(res) -> dict:
 # stage 3: adaptation (multi-step search)
 
 
-def adapt_search(problem: Problem, contact_plan: ContactPlan, on_progress=None):
+def adapt_search(problem: Problem, contact_plan: ContactPlan, on_progress=None, timeout_s: float | None = None,
+                 previous=None):
     """``strategy: search``: each transition of the searched contact plan adapted from the library
     primitive that fits it, else a generic contact-body path
     (:func:`planner_node.climb_planner.plan_from_contact_plan`): ``(ClimbPlanResult, summary)``."""
@@ -592,11 +596,55 @@ def adapt_search(problem: Problem, contact_plan: ContactPlan, on_progress=None):
 
     req = problem.request
     res = plan_from_contact_plan(problem.robot, problem.env, contact_plan, library=problem.library,
-                                 settings=problem.settings, seed=req.seed, timeout_s=req.timeout_s,
-                                 on_progress=on_progress)
+                                 settings=problem.settings, seed=req.seed,
+                                 timeout_s=req.timeout_s if timeout_s is None else timeout_s,
+                                 on_progress=on_progress, previous=previous)
     summary = res.summary()
     summary.update(request_id=req.id, strategy="search", rungs_requested=req.rungs if problem.env.ladder else 0)
     return res, summary
+
+
+def search_and_adapt(problem: Problem, path: GuidePath, on_progress=None):
+    """Contact search and adaptation with repair (in process): when the adaptation of the searched
+    plan is stuck at a transition (its backtrack window, ``contact_path.backtrack_window``,
+    exhausted: no state its predecessors reach makes that transition's whole-body path), the
+    contact search runs again without that transition (the stance pair it changes), up to
+    ``contact_search.repair_rounds`` times, all within the request's time limit
+    (``planning.timeout_s`` without one). The ladder paper backtracks inside one primitive
+    sequence; a searched sequence has other stances to offer, which only the search knows.
+    The adaptation of a repaired plan keeps the sub-tasks it shares with the stuck one
+    (``previous`` of :func:`planner_node.climb_planner.plan_from_contact_plan`).
+    ``(contacts StageResult, ClimbPlanResult, adaptation summary)``, the contact summary with
+    ``repairs``: per repair, the transition given up and the constraint that stopped it.
+    InfeasibleError ``contact_search:<reason>`` when a search finds no sequence."""
+    from .contact_search import banned_transition
+
+    t0 = time.perf_counter()
+    limit = problem.request.timeout_s if problem.request.timeout_s is not None else problem.settings.planning.timeout_s
+    banned: list[tuple] = []
+    repairs: list[dict] = []
+    resolution = problem.settings.contact_search.key_resolution
+    res = None
+    while True:
+        left = lambda: max(1.0, float(limit) - (time.perf_counter() - t0))  # noqa: E731
+        try:
+            contacts = contact_search_search(problem, path, banned=banned, time_limit_s=left())
+        except InfeasibleError as exc:
+            if not repairs:
+                raise
+            repairs[-1]["search"] = str(exc)  # no sequence without it: the last plan stands, stuck
+            return last
+        res, summary = adapt_search(problem, contacts.product, on_progress, timeout_s=left(), previous=res)
+        contacts.summary["repairs"] = repairs
+        last = contacts, res, summary
+        report = res.report
+        if res.success or report is None or not report.stuck or len(repairs) >= problem.settings.contact_search.repair_rounds:
+            return contacts, res, summary
+        pair = res.contact_steps[report.deepest].pair
+        repairs.append({"transition": pair, "move": contacts.summary["moves"][pair],
+                        "subtask": res.subtasks[report.deepest], "constraint": res.failure_constraint,
+                        "time_s": round(time.perf_counter() - t0, 1)})
+        banned.append(banned_transition(contacts.product, pair, resolution))
 
 
 def adapt(problem: Problem, contact_plan: ContactPlan | None = None, on_progress=None, strategy: str = "primitives"):

@@ -181,6 +181,9 @@ class ContactSearchParams:
         "on a ladder, contacts are removed only from sets with more than this (3: the quasi-static climbing gait)"))
     min_contacts_scene: int = param(1, unit="-", min=1, description=(
         "in a scene without a ladder, the same bound (1: single support, the robot walks)"))
+    repair_rounds: int = param(4, unit="-", min=0, description=(
+        "in process: a searched plan whose adaptation is stuck at a transition is searched again without "
+        "that transition, up to this many times"))
     ik_floating_weight: float = param(100.0, unit="1/m^2", min=0.0, description=(
         "the search's IK: cost of the added contact's distance to its milestone place (0: pcik.floating_weight)"))
     ik_max_iterations: int = param(20, unit="-", min=0, description=(
@@ -247,6 +250,9 @@ class ContactPathParams:
         "way-points between the lift-off and the approach point"))
     com_weight: float = param(10000.0, unit="1/m^2", min=0.0, description=(
         "way-point IK: cost of the CoM's horizontal distance to its target (between the end configurations' CoMs)"))
+    backtrack_window: int = param(2, unit="-", min=-1, description=(
+        "the adaptation of a contact plan stops (stuck) when the sub-task this far below the deepest one "
+        "reached has exhausted its attempts (-1: backtrack without bound, MSP-Recurse)"))
 
 
 @dataclass(frozen=True)
