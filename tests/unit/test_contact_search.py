@@ -150,6 +150,7 @@ def test_a_banned_transition_is_not_made_again(g1, env, no_primitives):
     q0, stance0, path = ladder_path(g1, env, 1)
     key = load_settings().contact_search.key_resolution
     first = cs.search(g1, env, q0, stance0, path)
+    assert cs.moves_of(first.plan) == first.moves
     ban = cs.banned_transition(first.plan, 0, key)
     assert ban == (cs.stance_key(first.plan.stances[0], key), cs.stance_key(first.plan.stances[1], key))
     again = cs.search(g1, env, q0, stance0, path, banned=[ban])

@@ -32,8 +32,7 @@ def stages(monkeypatch):
         assert time_limit_s is not None and 0 < time_limit_s <= 60.0
         if calls.search_fails_after is not None and k > calls.search_fails_after:
             raise InfeasibleError("contact_search:exhausted", "no sequence without the banned transitions")
-        return pipeline.StageResult(SimpleNamespace(name=f"plan{k}"), {"moves": [f"m{k}_{i}" for i in range(6)],
-                                                                        "time_s": 1.0})
+        return pipeline.StageResult(SimpleNamespace(name=f"plan{k}"), {"time_s": 1.0})
 
     def adapt(problem, plan, on_progress=None, timeout_s=None, previous=None):
         calls.previous.append(previous)
@@ -48,6 +47,7 @@ def stages(monkeypatch):
     monkeypatch.setattr(pipeline, "contact_search_search", search)
     monkeypatch.setattr(pipeline, "adapt_search", adapt)
     monkeypatch.setattr(contact_search, "banned_transition", lambda plan, i, r: (plan.name, i))
+    monkeypatch.setattr(contact_search, "moves_of", lambda plan: [f"m{plan.name[4:]}_{i}" for i in range(6)])
     return calls
 
 
@@ -77,3 +77,27 @@ def test_the_repairs_are_bounded_and_a_failed_repair_search_keeps_the_last_plan(
     stages.search_fails_after = -1  # the first search fails: that is the planning failure
     with pytest.raises(InfeasibleError, match="exhausted"):
         pipeline.search_and_adapt(_problem(rounds=4), path=None)
+
+
+def test_the_graph_adaptation_stage_repairs_a_stuck_searched_plan(stages, monkeypatch):
+    """primitive_adaptation's library call (pipeline.adapt_and_repair): the contact plan received
+    from the contact_search node is adapted; stuck, the guide path is planned again and the plan
+    repaired as in process; a plan that is not stuck, or of the primitives strategy, is not."""
+    problem = _problem(rounds=4)
+    first = SimpleNamespace(name="plan0")
+    monkeypatch.setattr(pipeline, "strategy_of", lambda problem, strategy: strategy)
+    monkeypatch.setattr(pipeline, "adapt", lambda problem, plan, on_progress, strategy:
+                        stages_adapt(problem, plan))
+    paths = []
+    monkeypatch.setattr(pipeline, "guide_path", lambda problem, strategy: paths.append(strategy) or
+                        pipeline.StageResult("path", {}))
+
+    def stages_adapt(problem, plan):
+        return pipeline.adapt_search(problem, plan)
+
+    res, summary = pipeline.adapt_and_repair(problem, first, strategy="search")
+    assert res.success and summary["plan"] == "plan2" and paths == ["search"]
+    assert [r["transition"] for r in summary["repairs"]] == [2, 2]
+    stages.stuck_rounds = 99
+    res, summary = pipeline.adapt_and_repair(problem, first, strategy="primitives")
+    assert not res.success and "repairs" not in summary and paths == ["search"]

@@ -5,8 +5,10 @@ Inputs
     the pipeline of the graph): Adapt-Primitive under the multi-step search with backtracking for
     the request (:func:`planner_node.pipeline.adapt`: robot, scenario, rungs, seed, timeout_s,
     descend, a measured ``start`` projected onto its stance); it may change the contact plan's
-    seed holds (the summary counts them). The plan is the one the in-process climb makes for the
-    same request. A contact plan without a request (``request_json`` empty) is adapted stance by
+    seed holds (the summary counts them). A searched plan whose adaptation is stuck at a
+    transition is repaired here (:func:`planner_node.pipeline.adapt_and_repair`: the contact
+    search run again without it; summary ``repairs``). The plan is the one the in-process climb
+    makes for the same request. A contact plan without a request (``request_json`` empty) is adapted stance by
     stance on the environment its ``environment`` names (or the ``ladder`` parameter's);
   - ``primitive_adaptation/request`` (std_msgs/String): the older direct request, YAML or JSON:
     ``{ladder: <name | path | spec mapping>, robot: g1, steps: 2, seed: 0, timeout_s: 120,
@@ -126,7 +128,7 @@ def make_node():
     from msgs_py.topics import qos_for
 
     from .node_params import AdaptationParams, node_defaults, planner_settings
-    from .pipeline import adapt, load_problem, parse_plan_request
+    from .pipeline import adapt_and_repair, load_problem, parse_plan_request
     from .stage_node import StageNode, check_request_strategy
 
     class AdaptationNode(StageNode):
@@ -163,7 +165,8 @@ def make_node():
 
         def _adapt(self, req, contact_plan, params) -> None:
             problem = load_problem(req, planner_settings(params))
-            res, summary = adapt(problem, contact_plan, on_progress=self._on_progress, strategy=params.strategy)
+            res, summary = adapt_and_repair(problem, contact_plan, on_progress=self._on_progress,
+                                            strategy=params.strategy)
             self._publish_result(req.id, res, summary, req.text)
 
         def _publish_result(self, rid: str, res, summary: dict, request_json: str = "") -> None:

@@ -607,5 +607,16 @@ def transition_changes(before: Stance, after: Stance) -> tuple[list[Hold], list[
     return added, removed
 
 
-__all__ = ["search", "SearchResult", "SearchStats", "Node", "configuration_distance", "accepting_surfaces",
+def moves_of(plan: ContactPlan) -> list[str]:
+    """The moves of a contact plan, "add:<limb>@<surface>" / "remove:<limb>@<surface>" per stance
+    pair (as the search names them)."""
+    out = []
+    for a, b in zip(plan.stances[:-1], plan.stances[1:]):
+        added, removed = transition_changes(a, b)
+        h, kind = (added[0], "add") if added else (removed[0], "remove") if removed else (None, "")
+        out.append(f"{kind}:{h.limb}@{h.env_surface}" if h is not None else "")
+    return out
+
+
+__all__ = ["search", "moves_of", "SearchResult", "SearchStats", "Node", "configuration_distance", "accepting_surfaces",
            "limb_reach", "surface_distance", "stance_key", "transition_changes", "without_detours", "limb_type"]

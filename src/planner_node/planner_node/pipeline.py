@@ -605,46 +605,77 @@ def adapt_search(problem: Problem, contact_plan: ContactPlan, on_progress=None, 
 
 
 def search_and_adapt(problem: Problem, path: GuidePath, on_progress=None):
-    """Contact search and adaptation with repair (in process): when the adaptation of the searched
-    plan is stuck at a transition (its backtrack window, ``contact_path.backtrack_window``,
-    exhausted: no state its predecessors reach makes that transition's whole-body path), the
-    contact search runs again without that transition (the stance pair it changes), up to
-    ``contact_search.repair_rounds`` times, all within the request's time limit
-    (``planning.timeout_s`` without one). The ladder paper backtracks inside one primitive
-    sequence; a searched sequence has other stances to offer, which only the search knows.
-    The adaptation of a repaired plan keeps the sub-tasks it shares with the stuck one
-    (``previous`` of :func:`planner_node.climb_planner.plan_from_contact_plan`).
+    """Contact search, adaptation and :func:`repair` (in process, as the graph's two stages do):
     ``(contacts StageResult, ClimbPlanResult, adaptation summary)``, the contact summary with
-    ``repairs``: per repair, the transition given up and the constraint that stopped it.
-    InfeasibleError ``contact_search:<reason>`` when a search finds no sequence."""
-    from .contact_search import banned_transition
-
+    ``repairs``. InfeasibleError ``contact_search:<reason>`` when the search finds no sequence."""
     t0 = time.perf_counter()
-    limit = problem.request.timeout_s if problem.request.timeout_s is not None else problem.settings.planning.timeout_s
+    contacts = contact_search_search(problem, path, time_limit_s=_time_left(problem, t0))
+    res, summary = adapt_search(problem, contacts.product, on_progress, timeout_s=_time_left(problem, t0))
+    return repair(problem, path, contacts, res, summary, on_progress, t0)
+
+
+def _time_left(problem: Problem, t0: float) -> float:
+    req = problem.request
+    limit = req.timeout_s if req.timeout_s is not None else problem.settings.planning.timeout_s
+    return max(1.0, float(limit) - (time.perf_counter() - t0))
+
+
+def repair(problem: Problem, path: GuidePath, contacts: StageResult, res, summary: dict, on_progress=None,
+           t0: float | None = None):
+    """Repair of a searched plan whose adaptation is stuck at a transition (its backtrack window,
+    ``contact_path.backtrack_window``, exhausted: no state its predecessors reach makes that
+    transition's whole-body path): the contact search runs again without that transition (the
+    stance pair it changes), and the new plan is adapted, up to ``contact_search.repair_rounds``
+    times, within the request's time limit from ``t0`` (``planning.timeout_s`` without one). The
+    ladder paper backtracks inside one primitive sequence; a searched sequence has other stances
+    to offer, which only the search knows. The adaptation of a repaired plan keeps the sub-tasks
+    it shares with the stuck one (``previous`` of
+    :func:`planner_node.climb_planner.plan_from_contact_plan`). A repair search that finds no
+    sequence leaves the last plan standing (its reason in the repair's ``search``).
+    ``(contacts, res, summary)`` of the last round, ``contacts.summary["repairs"]``: per repair,
+    the transition given up, its move, the sub-task and the constraint that stopped it."""
+    from .contact_search import banned_transition, moves_of
+
+    t0 = time.perf_counter() if t0 is None else t0
     banned: list[tuple] = []
     repairs: list[dict] = []
     resolution = problem.settings.contact_search.key_resolution
-    res = None
     while True:
-        left = lambda: max(1.0, float(limit) - (time.perf_counter() - t0))  # noqa: E731
-        try:
-            contacts = contact_search_search(problem, path, banned=banned, time_limit_s=left())
-        except InfeasibleError as exc:
-            if not repairs:
-                raise
-            repairs[-1]["search"] = str(exc)  # no sequence without it: the last plan stands, stuck
-            return last
-        res, summary = adapt_search(problem, contacts.product, on_progress, timeout_s=left(), previous=res)
         contacts.summary["repairs"] = repairs
-        last = contacts, res, summary
         report = res.report
-        if res.success or report is None or not report.stuck or len(repairs) >= problem.settings.contact_search.repair_rounds:
+        if (res.success or report is None or not report.stuck
+                or len(repairs) >= problem.settings.contact_search.repair_rounds):
             return contacts, res, summary
         pair = res.contact_steps[report.deepest].pair
-        repairs.append({"transition": pair, "move": contacts.summary["moves"][pair],
+        repairs.append({"transition": pair, "move": moves_of(contacts.product)[pair],
                         "subtask": res.subtasks[report.deepest], "constraint": res.failure_constraint,
                         "time_s": round(time.perf_counter() - t0, 1)})
         banned.append(banned_transition(contacts.product, pair, resolution))
+        try:
+            again = contact_search_search(problem, path, banned=banned, time_limit_s=_time_left(problem, t0))
+        except InfeasibleError as exc:
+            repairs[-1]["search"] = str(exc)  # no sequence without it: the last plan stands, stuck
+            return contacts, res, summary
+        contacts = again
+        res, summary = adapt_search(problem, contacts.product, on_progress, timeout_s=_time_left(problem, t0),
+                                    previous=res)
+
+
+def adapt_and_repair(problem: Problem, contact_plan: ContactPlan | None = None, on_progress=None,
+                     strategy: str = "primitives"):
+    """The adaptation stage of the graph: :func:`adapt`, and a searched plan whose adaptation is
+    stuck :func:`repair`-ed here (the guide path planned again for the request - deterministic,
+    the guide_path node's - and the contact search re-run without the stuck transitions), so
+    that the graph plans what the in-process :func:`search_and_adapt` plans. The summary gains
+    ``repairs``. ``(ClimbPlanResult, summary)``."""
+    t0 = time.perf_counter()
+    res, summary = adapt(problem, contact_plan, on_progress, strategy)
+    if strategy_of(problem, strategy) != "search" or res.success or res.report is None or not res.report.stuck:
+        return res, summary
+    path = guide_path(problem, strategy="search").product
+    contacts, res, summary = repair(problem, path, StageResult(contact_plan, {}), res, summary, on_progress, t0)
+    summary["repairs"] = contacts.summary["repairs"]
+    return res, summary
 
 
 def adapt(problem: Problem, contact_plan: ContactPlan | None = None, on_progress=None, strategy: str = "primitives"):
