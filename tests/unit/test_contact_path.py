@@ -206,3 +206,19 @@ def test_a_cycle_of_the_best_first_search_becomes_a_whole_body_plan(problem):
         assert feasibility.check(robot, env, t.path[-1], t.target_stance, frozen).feasible, k
     last = res.plan.transitions[-1].target_stance
     assert [last.hold(f).env_surface for f in FEET] == ["rung_2", "rung_2"]
+
+
+def test_a_limb_freed_for_good_is_lifted_further_on_each_retry():
+    """The first attempt lifts a freed limb like a transfer; a retry (the step below a stuck one,
+    backtracked into) draws a higher lift, so its kept posture clears the surface it left."""
+    from types import SimpleNamespace
+
+    p = settings_mod.ContactPathParams(lift_clearance=0.05, free_lift_max=0.15)
+    ctx = SimpleNamespace(settings=SimpleNamespace(contact_path=p))
+    rng = np.random.default_rng(0)
+    assert contact_path.free_lift(ctx, 0, rng) == 0.05
+    lifts = [contact_path.free_lift(ctx, k, rng) for k in range(1, 40)]
+    assert all(0.05 <= h <= 0.15 for h in lifts) and max(lifts) > 0.12 and len(set(lifts)) == len(lifts)
+    flat = SimpleNamespace(settings=SimpleNamespace(contact_path=settings_mod.ContactPathParams(
+        lift_clearance=0.05, free_lift_max=0.0)))
+    assert contact_path.free_lift(flat, 3, rng) == 0.05

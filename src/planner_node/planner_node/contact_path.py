@@ -227,10 +227,22 @@ def keep_limb_posture(robot, q: np.ndarray, q_from: np.ndarray, limbs) -> np.nda
     return out
 
 
+def free_lift(ctx: A.AdaptContext, attempt: int, rng: np.random.Generator) -> float:
+    """How far a limb freed for good is lifted off its hold before it keeps its posture: the
+    transfer's ``lift_clearance`` first, then a random distance up to ``free_lift_max`` on each
+    retry. The limb's posture is kept for the moves that follow, so the lift decides its
+    clearance from the surface it left while the body moves on (narrow_passage: the freed right
+    wrist met the palm block when the CoM went over the foot on the step)."""
+    p = ctx.settings.contact_path
+    if attempt == 0 or p.free_lift_max <= p.lift_clearance:
+        return p.lift_clearance
+    return float(rng.uniform(p.lift_clearance, p.free_lift_max))
+
+
 def free_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, q_end: np.ndarray, attempt: int,
               rng: np.random.Generator, name: str = "") -> Step | AttemptFailure:
     """``limb`` leaves its hold in ``state`` for good: lifted off along the hold's direction by
-    ``lift_clearance`` (a way-point, the other holds kept), then on to a configuration near
+    :func:`free_lift` (a way-point, the other holds kept), then on to a configuration near
     ``q_end`` (the contact plan's) with the limb's joints as at the lift-off, in equilibrium on
     the other holds. The Transition has the moving limb and no hold for it in its target stance
     (the FSM: remove, then the path, then the next transition). The later steps keep that limb's
@@ -243,7 +255,7 @@ def free_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, q_end: np.nda
     q_s = np.asarray(state.q, dtype=float)
     T_s = np.asarray(ctx.robot.T_world_surface(limb, q_s))
     cue = T_s.copy()
-    cue[:3, 3] += ctx.settings.contact_path.lift_clearance * hold_direction(ctx, old, q_s)
+    cue[:3, 3] += free_lift(ctx, attempt, rng) * hold_direction(ctx, old, q_s)
     q_w = waypoint(ctx, q_s, _seed(ctx, q_s, attempt, rng), sigma, limb, [old], cue, rng)
     if q_w is None:
         res = ctx.check(q_s, sigma, A.zone_exclusions(ctx, q_s, limb, [old]))

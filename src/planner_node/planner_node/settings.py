@@ -244,13 +244,16 @@ class ContactPathParams:
         "the moving limb's surface frame leaves its hold by this along the hold's normal (a grasp: toward the body)"))
     approach_distance: float = param(0.08, unit="m", min=0.0, description=(
         "the moving limb reaches its new hold along the hold's normal from this far"))
+    free_lift_max: float = param(0.05, unit="m", min=0.0, description=(
+        "a limb freed for good leaves its hold by lift_clearance along the hold's direction, then keeps its "
+        "posture; a retry lifts it by a random distance up to this"))
     carry_backoff: float = param(0.12, unit="m", min=0.0, description=(
         "carry way-points: held this far in front of the target (horizontally toward where the limb comes from)"))
     carry_waypoints: int = param(2, unit="-", min=1, max=8, description=(
         "way-points between the lift-off and the approach point"))
     com_weight: float = param(10000.0, unit="1/m^2", min=0.0, description=(
         "way-point IK: cost of the CoM's horizontal distance to its target (between the end configurations' CoMs)"))
-    backtrack_window: int = param(2, unit="-", min=-1, description=(
+    backtrack_window: int = param(-1, unit="-", min=-1, description=(
         "the adaptation of a contact plan stops (stuck) when the sub-task this far below the deepest one "
         "reached has exhausted its attempts (-1: backtrack without bound, MSP-Recurse)"))
 
