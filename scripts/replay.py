@@ -280,11 +280,12 @@ def reexecution_setup(request: dict, set_params: list[str]) -> tuple[dict, dict,
     if delay and "actuation_latency_s" not in controller:
         controller["actuation_latency_s"] = delay * load_controller_params().control_period_s
     # lockstep.command_timeout_s: the relay never drops a command, so a timeout could only come
-    # from a loaded machine (and would damp a tick the recorded run did not damp): 5 s, not 1 s
-    # (a tick the recorded controller did not answer costs that long)
+    # from a loaded machine (and would damp a tick the recorded run did not damp): 30 s, longer than
+    # the relay's wait for a plan's delivery (--plan-delivery-s); a tick the recorded controller did
+    # not answer is damped by this script, not by the timeout
     bridge = {"robot": robot, "ladder": scenario, "initial_posture": posture, "execution": "lockstep",
               "seed": int(request.get("seed") or 0), "lockstep.command_delay_ticks": delay,
-              "lockstep.command_timeout_s": 5.0, "lockstep.startup_wait_s": 60.0}
+              "lockstep.command_timeout_s": 30.0, "lockstep.startup_wait_s": 60.0}
     for item in set_params:
         try:
             target, assignment = item.split(":", 1)
@@ -301,7 +302,7 @@ def reexecute(args) -> int:
     import numpy as np
     import yaml
 
-    from climb_coordinator.report import compare_base, load_run, plan_start_stamps
+    from climb_coordinator.report import compare_base, first_tick_after, load_run, plan_start_stamps
     from msgs_py.bag import read_bag
 
     bag = pathlib.Path(args.bag)
@@ -462,7 +463,7 @@ def reexecute(args) -> int:
                 state["next_plan"] = i + 1
                 gated.append(stamp + (1 + delay) * period_ns)  # the tick at which the controller takes it
                 # until the controller says it accepted it (its controller/plan diagnostic), at most
-                # plan_delivery_s (the bridge waits lockstep.command_timeout_s = 5 s)
+                # plan_delivery_s (the bridge waits lockstep.command_timeout_s = 30 s)
                 gate["until"], gate["plan"] = now + args.plan_delivery_s, i + 1
                 return
             if late and stamp < accepted:  # the recorded bridge ignored it and damped this tick
@@ -507,11 +508,14 @@ def reexecute(args) -> int:
     node.create_subscription(JointState, "joint_states", on_joint_states, deep, raw=True)
 
     new_lost: list[str] = []
+    accepted_after: list = []  # per plan the new controller accepted: its last tick before it [ns]
 
     def on_diagnostics(msg) -> None:
         for status in msg.status:
             if status.name.endswith("controller/plan") and status.message.startswith("accepted"):
                 state["plans_accepted"] += 1
+                after = {kv.key: kv.value for kv in status.values}.get("after_tick_ns", "")
+                accepted_after.append(int(after) if after.lstrip("-").isdigit() else None)
             elif status.name.endswith("sim_bridge/controller") or status.name.endswith("sim_bridge/command"):
                 new_lost.append(f"{msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9:.3f}: {status.message}")
 
@@ -622,8 +626,15 @@ def reexecute(args) -> int:
             pathlib.Path(args.keep_logs).mkdir(parents=True, exist_ok=True)
             (pathlib.Path(args.keep_logs) / f"{name}.log").write_text(text)
     tmp.cleanup()
-    new_starts = []  # the tick at which the new controller's FSM left its state after each plan
-    for g in gated:
+    new_starts = []  # the tick at which the new controller took each plan: the first after the
+    # tick it accepted it after (its diagnostic), else the FSM's first change from the gated tick
+    for k, g in enumerate(gated):
+        after = accepted_after[k] if k < len(accepted_after) else None
+        if after is not None:
+            start = first_tick_after(sorted(s for s, _ in fsm), after)
+            if start is not None:
+                new_starts.append(start)
+                continue
         change = next((fsm[k][0] for k in range(len(fsm)) if fsm[k][0] >= g and (
             k == 0 or fsm[k][1] != fsm[k - 1][1] or fsm[k][0] < fsm[k - 1][0])), None)
         if change is not None:
@@ -708,7 +719,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tolerance-mm", type=float, default=1.0, help="[mm] re-execution: 'reproduced' when max <= this")
     ap.add_argument("--max-sim-s", type=float, default=None, help="[s] re-execution: stop at this sim time")
     ap.add_argument("--timeout", type=float, default=600.0, help="[s] re-execution: wall-time bound")
-    ap.add_argument("--plan-delivery-s", type=float, default=3.0,
+    ap.add_argument("--plan-delivery-s", type=float, default=20.0,
                     help="[s] re-execution: the lock-step waits for the controller to accept a plan, at most this long")
     ap.add_argument("--gripper-delay-s", type=float, default=0.02,
                     help="[s] re-execution: a gripper request reaches the bridge this long before the next command")

@@ -97,6 +97,40 @@ def test_load_run_reads_the_series_and_drops_the_run_before_a_reset(bag):
     assert 15 <= len(sub.js_t) <= 25
 
 
+def test_plan_start_from_the_controllers_acceptance_not_from_the_recorders_arrival_order(tmp_path):
+    """A recorder may log the plan after the controller states of the ticks that took it (two
+    topics, two readers). The controller's acceptance diagnostic names its last tick before the plan:
+    the start is the next tick, whatever the arrival order. Without it the old rule (first FSM change
+    logged after the plan) is the fallback, and it picks a later change in such a bag."""
+    from climb_msgs.msg import ControllerState, WholeBodyPlan
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+    from climb_coordinator.report import load_run, plan_start_stamps
+    from msgs_py.bag import BagRecorder
+
+    def write(path, with_diagnostic: bool) -> None:
+        with BagRecorder(path, close_on_signals=False) as rec:
+            log = 10
+            for k in range(100):
+                log += 20_000_000
+                cs = ControllerState(fsm_state=FSM[k], mode="qp")
+                _stamp(cs, 0.02 * k)
+                rec.write("/controller/state", cs, log)
+                if k == 25:  # logged six ticks after the controller took it (tick 20)
+                    rec.write("/whole_body_plan", WholeBodyPlan(robot="g1"), log + 1)
+                    if with_diagnostic:
+                        status = DiagnosticStatus(name="controller/plan", message="accepted whole_body_plan: 1 transitions",
+                                                  values=[KeyValue(key="after_tick_ns", value=str(380_000_000))])
+                        rec.write("/diagnostics", DiagnosticArray(status=[status]), log + 2)
+
+    write(tmp_path / "with", True)
+    write(tmp_path / "without", False)
+    run = load_run(tmp_path / "with")
+    assert run.plans_after_tick_ns == [380_000_000]
+    assert plan_start_stamps(run) == [400_000_000]
+    assert plan_start_stamps(load_run(tmp_path / "without")) == [700_000_000]  # the next FSM change
+
+
 def test_compare_base_aligns_on_stamps():
     from climb_coordinator.report import compare_base
 

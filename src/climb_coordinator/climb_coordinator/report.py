@@ -76,6 +76,9 @@ class RunData:
     climb_result: dict = field(default_factory=dict)  # the summary of the last finished climb (climb/status)
     plans_log_ns: list[int] = field(default_factory=list)
     plans_transitions: list[int] = field(default_factory=list)
+    #: [ns] per plan the controller accepted (its controller/plan diagnostic), the stamp of its last
+    #: tick before it (None: the plan started at an activation, or a bag without the value)
+    plans_after_tick_ns: list = field(default_factory=list)
 
     @property
     def robot(self) -> str:
@@ -128,10 +131,14 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
         run.topics = {_name(c.topic): c.msgcount for c in reader.connections}
         wanted = [c for c in reader.connections
                   if _name(c.topic) in ("joint_states", "sim/base_truth", "controller/state", "sim/contacts",
-                                        "climb/request", "whole_body_plan", "climb/status")
+                                        "climb/request", "whole_body_plan", "climb/status", "diagnostics")
                   or _name(c.topic).startswith("ft/")]
         for conn, log_ns, raw in reader.messages(connections=wanted):
             topic = _name(conn.topic)
+            if topic == "diagnostics":
+                if b"accepted whole_body_plan" in bytes(raw):  # decode only the plan acceptances
+                    run.plans_after_tick_ns.extend(_plan_acceptances(deserialize(reader.typestore, raw, conn.msgtype)))
+                continue
             msg = deserialize(reader.typestore, raw, conn.msgtype)
             if topic == "joint_states":
                 t = _stamp(msg.header) / _NS
@@ -216,8 +223,8 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
                         pass
     run.js_t = np.asarray(js_t)
     n = len(run.joint_names)
-    run.js_q = np.asarray(js_q).reshape(-1, n)
-    run.js_effort = np.asarray(js_e).reshape(-1, n)
+    run.js_q = np.asarray(js_q, float).reshape(len(js_t), n)
+    run.js_effort = np.asarray(js_e, float).reshape(len(js_t), n)
     run.base_t = np.asarray(base_t)
     run.base_pose = np.asarray(base_pose, float).reshape(-1, 7)
     if cs:
@@ -231,10 +238,10 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
         run.mode = cs[-1][7]
     run.contacts_t = np.asarray(ct)
     k = len(run.limbs)
-    run.normal = np.asarray(cn).reshape(-1, k)
-    run.tangential = np.asarray(ctg).reshape(-1, k)
+    run.normal = np.asarray(cn, float).reshape(len(ct), k)
+    run.tangential = np.asarray(ctg, float).reshape(len(ct), k)
     run.surface = csurf
-    run.grasped = np.asarray(cgr, bool).reshape(-1, k)
+    run.grasped = np.asarray(cgr, bool).reshape(len(ct), k)
     run.ft = {s: (np.array([x[0] for x in v]), np.array([x[1] for x in v], float).reshape(-1, 3))
               for s, v in ft.items()}
     return run
@@ -255,15 +262,46 @@ def fsm_segments(t: np.ndarray, states: list[str]) -> list[tuple[str, float, flo
     return out
 
 
+def _plan_acceptances(msg) -> list:
+    """The after_tick_ns [ns] (None when empty or unreadable) of each controller/plan status of a
+    DiagnosticArray that says a whole_body_plan was accepted."""
+    out = []
+    for status in msg.status:
+        if status.name.endswith("controller/plan") and status.message.startswith("accepted whole_body_plan"):
+            value = {kv.key: kv.value for kv in status.values}.get("after_tick_ns", "")
+            try:
+                out.append(int(value) if value else None)
+            except ValueError:
+                out.append(None)
+    return out
+
+
+def first_tick_after(stamps_ns, after_ns: int) -> int | None:
+    """[ns] the first of ``stamps_ns`` (a controller's state stamps, in order) later than
+    ``after_ns``, or None."""
+    for s in stamps_ns:
+        if s > after_ns:
+            return int(s)
+    return None
+
+
 def plan_start_stamps(run: RunData) -> list[int]:
     """[ns] for each recorded whole_body_plan, the sim stamp of the first controller tick that
-    acted on it: the first controller/state received after the plan whose FSM state differs from
-    the one before it (the FSM leaves idle / hold on the tick it takes a plan), or that starts a
-    run (the first state, or the first after a sim reset: a controller activated once its plan
-    exists takes it on its first tick)."""
+    acted on it. When the controller said after which tick it accepted each plan (its
+    controller/plan diagnostic's after_tick_ns), the first controller/state after that tick: sim
+    time alone, whatever order the recorder received the topics in. Else (older bags, a plan that
+    started at an activation) the first controller/state received after the plan whose FSM state
+    differs from the one before it (the FSM leaves idle / hold on the tick it takes a plan), or
+    that starts a run (the first state, or the first after a sim reset: a controller activated
+    once its plan exists takes it on its first tick)."""
     out = []
     if not len(run.cs_t):
         return out
+    stamps = [int(round(t * _NS)) for t in run.cs_t]
+    if len(run.plans_after_tick_ns) == len(run.plans_log_ns) and all(a is not None for a in run.plans_after_tick_ns):
+        starts = [first_tick_after(stamps, a) for a in run.plans_after_tick_ns]
+        if all(s is not None for s in starts):
+            return starts
     for log_ns in run.plans_log_ns:
         after = np.nonzero(run.cs_log_ns >= log_ns)[0]
         stamp = None

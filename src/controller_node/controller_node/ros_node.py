@@ -496,8 +496,11 @@ class ControllerNode(LifecycleNode):
                 return
         text = f"accepted whole_body_plan: {len(plan.transitions)} transitions{when}"
         self.get_logger().info(text)
+        # after_tick_ns: the stamp of the last tick before the plan (it starts on the next one; empty
+        # when it starts at activation): a bag then knows the plan's first tick from sim time alone
+        after = "" if when else str(self._last_stamp)
         diagnose(self, "controller/plan", text, level=0,
-                 values={"request_id": request_id, "transitions": len(plan.transitions)})
+                 values={"request_id": request_id, "transitions": len(plan.transitions), "after_tick_ns": after})
 
     def _on_hold(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """controller/hold: abandon the plan, hold the active contacts (Controller.hold_plan)."""
