@@ -222,3 +222,28 @@ def test_a_limb_freed_for_good_is_lifted_further_on_each_retry():
     flat = SimpleNamespace(settings=SimpleNamespace(contact_path=settings_mod.ContactPathParams(
         lift_clearance=0.05, free_lift_max=0.0)))
     assert contact_path.free_lift(flat, 3, rng) == 0.05
+
+
+def test_a_hand_freed_for_good_folds_to_the_reference_posture_first_then_alternates(g1):
+    """With ``free_rest`` the first attempt brings a freed hand's arm to the robot's reference
+    (standing) posture, the second keeps the lift-off posture, later ones blend the two; a foot,
+    or ``free_rest`` off, keeps the lift-off posture."""
+    from types import SimpleNamespace
+
+    ref = g1.q_reference()
+    q_lift = ref.copy()
+    arm = contact_path.limb_joint_indices(g1, "right_hand")
+    q_lift[arm] += 0.8  # an arm raised toward a rail
+    ctx = SimpleNamespace(robot=g1, settings=SimpleNamespace(contact_path=settings_mod.ContactPathParams()))
+    rng = np.random.default_rng(0)
+    first = contact_path.freed_posture(ctx, "right_hand", q_lift, 0, rng)
+    assert np.allclose(first[arm], ref[arm]) and np.allclose(np.delete(first, arm), np.delete(q_lift, arm))
+    assert np.array_equal(contact_path.freed_posture(ctx, "right_hand", q_lift, 1, rng), q_lift)
+    blends = [contact_path.freed_posture(ctx, "right_hand", q_lift, k, rng)[arm] for k in (2, 4, 6)]
+    for b in blends:  # between the two, strictly inside for at least the one joint moved
+        s = (q_lift[arm][0] - b[0]) / 0.8
+        assert 0.3 - 1e-9 <= s <= 1.0 + 1e-9 and np.allclose(b, q_lift[arm] - s * 0.8)
+    assert np.array_equal(contact_path.freed_posture(ctx, "right_foot", q_lift, 0, rng), q_lift)
+    off = SimpleNamespace(robot=g1, settings=SimpleNamespace(
+        contact_path=settings_mod.ContactPathParams(free_rest=False)))
+    assert np.array_equal(contact_path.freed_posture(off, "right_hand", q_lift, 0, rng), q_lift)

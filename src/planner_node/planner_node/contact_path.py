@@ -239,12 +239,30 @@ def free_lift(ctx: A.AdaptContext, attempt: int, rng: np.random.Generator) -> fl
     return float(rng.uniform(p.lift_clearance, p.free_lift_max))
 
 
+def freed_posture(ctx: A.AdaptContext, limb: str, q_lift: np.ndarray, attempt: int,
+                  rng: np.random.Generator) -> np.ndarray:
+    """The posture a limb freed for good keeps for the moves that follow (a configuration; only
+    its joints count). A hand: with ``free_rest``, the reference (standing) arm posture on the
+    first attempt - the arm folded in front of the body, away from what it held (stairs_handrail:
+    a hand left on the rail with its lift-off posture met the rail when the body stepped up onto
+    the landing) - the lift-off posture on the second, and blends of the two after. A foot, or
+    without ``free_rest``: the lift-off posture."""
+    q_lift = np.asarray(q_lift, dtype=float)
+    if limb not in HANDS or not ctx.settings.contact_path.free_rest or attempt % 2 == 1:
+        return q_lift
+    s = 1.0 if attempt == 0 else float(rng.uniform(0.3, 1.0))
+    idx = limb_joint_indices(ctx.robot, limb)
+    out = q_lift.copy()
+    out[idx] = (1.0 - s) * q_lift[idx] + s * ctx.robot.q_reference()[idx]
+    return out
+
+
 def free_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, q_end: np.ndarray, attempt: int,
               rng: np.random.Generator, name: str = "") -> Step | AttemptFailure:
     """``limb`` leaves its hold in ``state`` for good: lifted off along the hold's direction by
     :func:`free_lift` (a way-point, the other holds kept), then on to a configuration near
-    ``q_end`` (the contact plan's) with the limb's joints as at the lift-off, in equilibrium on
-    the other holds. The Transition has the moving limb and no hold for it in its target stance
+    ``q_end`` (the contact plan's) with the limb's joints as :func:`freed_posture` has them (a
+    hand: folded to the reference posture first), in equilibrium on the other holds. The Transition has the moving limb and no hold for it in its target stance
     (the FSM: remove, then the path, then the next transition). The later steps keep that limb's
     posture (:func:`keep_limb_posture`)."""
     old = state.stance.hold(limb)
@@ -260,14 +278,22 @@ def free_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, q_end: np.nda
     if q_w is None:
         res = ctx.check(q_s, sigma, A.zone_exclusions(ctx, q_s, limb, [old]))
         return AttemptFailure(A.failure_name(res) or f"reach:{limb}", f"{name}: lift-off way-point")
-    q_bar = keep_limb_posture(ctx.robot, _seed(ctx, np.asarray(q_end, dtype=float), attempt, rng), q_w, [limb])
+    q_bar = keep_limb_posture(ctx.robot, _seed(ctx, np.asarray(q_end, dtype=float), attempt, rng),
+                              freed_posture(ctx, limb, q_w, attempt, rng), [limb])
     proj = A.project(ctx, q_bar, sigma, rng)
     if proj.q is None:
         return AttemptFailure(proj.failure, f"{name}: end configuration ({dict(proj.failures)})")
     q_e = proj.q
-    path, _, failure = A.build_path(ctx, [q_s, q_w, q_e], sigma, limb, [old])
-    if path is None:
+    # the lift-off may touch the surface it leaves (the hold's zone); from the lift-off on the
+    # freed limb keeps clear of it like any other body (with the zone all along, the hand freed
+    # from stairs_handrail's rail went 2.7 cm through it on its way to the reference posture)
+    lift, _, failure = A.build_path(ctx, [q_s, q_w], sigma, limb, [old])
+    if lift is None:
+        return AttemptFailure(failure, f"{name}: lift-off path")
+    rest, _, failure = A.build_path(ctx, [q_w, q_e], sigma, limb, [])
+    if rest is None:
         return AttemptFailure(failure, f"{name}: path")
+    path = list(lift) + list(rest[1:])
     transition = _transition(ctx, f"free_{'hand' if limb in HANDS else 'foot'}", limb, sigma, sigma, path)
     return Step(A.ClimbState(q_e, sigma), A.Segment(name, transition, None, attempt))
 

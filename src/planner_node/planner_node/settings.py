@@ -247,6 +247,10 @@ class ContactPathParams:
     free_lift_max: float = param(0.05, unit="m", min=0.0, description=(
         "a limb freed for good leaves its hold by lift_clearance along the hold's direction, then keeps its "
         "posture; a retry lifts it by a random distance up to this"))
+    free_rest: bool = param(True, unit="-", description=(
+        "a hand freed for good is brought to the robot's reference (standing) arm posture after its lift-off "
+        "(first attempt; the retries alternate with the lift-off posture and blends of the two); false: it "
+        "keeps its lift-off posture"))
     carry_backoff: float = param(0.12, unit="m", min=0.0, description=(
         "carry way-points: held this far in front of the target (horizontally toward where the limb comes from)"))
     carry_waypoints: int = param(2, unit="-", min=1, max=8, description=(

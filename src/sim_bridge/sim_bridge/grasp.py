@@ -30,7 +30,14 @@ from .params import GraspParams
 if TYPE_CHECKING:  # pragma: no cover
     from .pybullet_backend import PyBulletBackend
 
-GRASPABLE_ROLES = ("rung", "rail")
+GRASPABLE_ROLES = ("rung", "rail")  # ladder roles a hand may close around (when bilateral)
+
+
+def graspable(surface) -> bool:
+    """A hand may close around ``surface``: a bilateral ladder rung or rail, or a scene surface
+    tagged ``bilateral`` (a handrail, a roll-cage bar: scene_spec.md). Whether the hand fits
+    around it is :func:`climb_core.holds.grasp_fits`."""
+    return bool(getattr(surface, "bilateral", False)) and (surface.role in GRASPABLE_ROLES or surface.role == "scene")
 
 
 @dataclass
@@ -54,15 +61,15 @@ class GraspManager:
 
     # -- geometry -----------------------------------------------------------------------------
     def nearest_axis_point(self, hand: str) -> tuple[str, np.ndarray, float]:
-        """(surface name, closest point on its axis segment [m], distance [m]) over every rung and
-        rail the hand closes around (a round one, or a rect bar within the hand's ``max_bar``:
+        """(surface name, closest point on its axis segment [m], distance [m]) over every rung, rail
+        and bilateral scene surface the hand closes around (a round one, or a rect bar within the hand's ``max_bar``:
         ``climb_core.holds.grasp_fits``; the axis of a bar is its centre line); ("", centre, inf)
         when the ladder has none."""
         b = self.backend
         centre = b.surface_pose(hand)[:3, 3]
         best = ("", centre, float("inf"))
         for name, surface in b.env.surfaces.items():
-            if surface.role not in GRASPABLE_ROLES or not holds.grasp_fits(b.robot, hand, surface):
+            if not graspable(surface) or not holds.grasp_fits(b.robot, hand, surface):
                 continue
             T = b.surface_frame(name)
             axis = T[:3, 0]
