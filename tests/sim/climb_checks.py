@@ -62,3 +62,28 @@ def assert_standing_on(backend, foot: str, rung: int) -> None:
     assert pose["horizontal_offset"] < 0.06, (foot, pose)
     assert -0.01 < pose["height_above_top"] < 0.05, (foot, pose)
     assert abs(pose["along_rung"]) < 0.2, (foot, pose)
+
+
+def execute_stored_scene_plan(scene: str, plan_path, tmp_path, min_transitions: int):
+    """A scene's stored whole-body plan (scripts/plan.py --out) executed in process from standing,
+    QP mode, lock-step with one period of latency: (result, settings)."""
+    from climb_core.ladder import load_scenario
+    from climb_core.robot import load_robot
+    from climb_coordinator.climb import ClimbRequest, StoredPlanSource, execute
+    from climb_coordinator.settings import load_climb_settings
+
+    settings = load_climb_settings()
+    req = ClimbRequest(ladder=scene, robot="g1", rungs=1, mode="qp", out_dir=tmp_path, strategy="search",
+                       command_delay_ticks=1)
+    plans = StoredPlanSource(plan_path, load_robot("g1"), settings)
+    assert plans.plan_.environment == scene and len(plans.plan_.transitions) >= min_transitions
+    return execute(req, plans, settings, load_scenario(scene), "standing"), settings
+
+
+def touched_surfaces(backend) -> set:
+    """The scene's surfaces the robot touches now (simulator contact points)."""
+    from climb_coordinator import judge
+
+    names = judge._surface_names(backend)
+    return {names.get(cp[2]) for cp in backend.p.getContactPoints(bodyA=backend.body, physicsClientId=backend.client)
+            if cp[2] != backend.body}

@@ -18,7 +18,7 @@ import pathlib
 import numpy as np
 import pytest
 
-from climb_checks import check_run
+from climb_checks import check_run, execute_stored_scene_plan, touched_surfaces
 
 pytestmark = [pytest.mark.sim, pytest.mark.heavy]
 
@@ -39,19 +39,9 @@ def test_a_bilateral_scene_surface_is_graspable_and_a_step_is_not():
 
 
 def test_the_stored_plan_of_the_stairs_is_executed_to_the_landing_with_a_hand_on_the_rail(tmp_path):
-    from climb_core.ladder import load_scenario
-    from climb_core.robot import load_robot
-    from climb_coordinator import judge
-    from climb_coordinator.climb import ClimbRequest, StoredPlanSource, execute
-    from climb_coordinator.settings import load_climb_settings
     from msgs_py.bag import read_bag
 
-    settings = load_climb_settings()
-    req = ClimbRequest(ladder="stairs_handrail", robot="g1", rungs=1, mode="qp", out_dir=tmp_path,
-                       strategy="search", command_delay_ticks=1)
-    plans = StoredPlanSource(STORED_PLAN, load_robot("g1"), settings)
-    assert plans.plan_.environment == "stairs_handrail" and len(plans.plan_.transitions) >= 25
-    result = execute(req, plans, settings, load_scenario("stairs_handrail"), "standing")
+    result, settings = execute_stored_scene_plan("stairs_handrail", STORED_PLAN, tmp_path, 25)
     try:
         s = result.summary
         assert s["success"], s["failure_reason"]
@@ -103,9 +93,7 @@ def test_the_stored_plan_of_the_stairs_is_executed_to_the_landing_with_a_hand_on
             sole = result.backend.surface_pose(foot)[:3, 3]
             assert abs(sole[2] - STEP_TOPS["landing"]) < 0.02 and 1.4 < sole[0] < 2.4, (foot, sole)
         # nothing but the hands and the feet touched the scene
-        b = result.backend
-        touched = {judge._surface_names(b).get(cp[2]) for cp in
-                   b.p.getContactPoints(bodyA=b.body, physicsClientId=b.client) if cp[2] != b.body}
+        touched = touched_surfaces(result.backend)
         assert touched <= set(STEP_TOPS) | {"ground"}, touched
         # the base went up the stairs: 0.60 m higher, about 1.9 m forward
         base = result.log.arrays()["base"]

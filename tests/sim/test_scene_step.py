@@ -18,7 +18,7 @@ import pathlib
 import numpy as np
 import pytest
 
-from climb_checks import check_run
+from climb_checks import check_run, execute_stored_scene_plan, touched_surfaces
 
 pytestmark = [pytest.mark.sim, pytest.mark.heavy]
 
@@ -27,17 +27,7 @@ STORED_PLAN = pathlib.Path(__file__).resolve().parents[1] / "data" / "narrow_pas
 
 def test_the_stored_plan_of_the_step_is_executed_to_the_goal_with_the_hand_on_the_block_carrying_weight(tmp_path):
     """The stored plan (the planner's output, deterministic to execute), every transition."""
-    from climb_core.ladder import load_scenario
-    from climb_core.robot import load_robot
-    from climb_coordinator.climb import ClimbRequest, StoredPlanSource, execute
-    from climb_coordinator.settings import load_climb_settings
-
-    settings = load_climb_settings()
-    req = ClimbRequest(ladder="narrow_passage_step", robot="g1", rungs=1, mode="qp", out_dir=tmp_path,
-                       strategy="search", command_delay_ticks=1)
-    plans = StoredPlanSource(STORED_PLAN, load_robot("g1"), settings)
-    assert plans.plan_.environment == "narrow_passage_step" and len(plans.plan_.transitions) >= 15
-    result = execute(req, plans, settings, load_scenario("narrow_passage_step"), "standing")
+    result, settings = execute_stored_scene_plan("narrow_passage_step", STORED_PLAN, tmp_path, 15)
     _check_the_scene(result, settings)
 
 
@@ -62,8 +52,6 @@ def test_the_step_is_planned_whole_body_then_executed(tmp_path):
 
 
 def _check_the_scene(result, settings) -> None:
-    from climb_coordinator import judge
-
     try:
         s = result.summary
         assert s["success"], s["failure_reason"]
@@ -100,9 +88,7 @@ def _check_the_scene(result, settings) -> None:
             sole = result.backend.surface_pose(foot)[:3, 3]
             assert abs(sole[2] - step_top) < 0.02 and 0.5 < sole[0] < 1.5, (foot, sole)
         # nothing but the hands and the feet touched the scene (the walls included)
-        b = result.backend
-        touched = {judge._surface_names(b).get(cp[2]) for cp in
-                   b.p.getContactPoints(bodyA=b.body, physicsClientId=b.client) if cp[2] != b.body}
+        touched = touched_surfaces(result.backend)
         assert touched <= {"ground", "step", "palm_block"}, touched
         # the base went up the step: 0.33 m higher, about a metre forward
         base = result.log.arrays()["base"]
