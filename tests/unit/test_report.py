@@ -108,7 +108,7 @@ def test_plan_start_from_the_controllers_acceptance_not_from_the_recorders_arriv
     from climb_coordinator.report import load_run, plan_start_stamps
     from msgs_py.bag import BagRecorder
 
-    def write(path, with_diagnostic: bool) -> None:
+    def write(path, with_diagnostic: bool, periodic: bool = False) -> None:
         with BagRecorder(path, close_on_signals=False) as rec:
             log = 10
             for k in range(100):
@@ -122,13 +122,23 @@ def test_plan_start_from_the_controllers_acceptance_not_from_the_recorders_arriv
                         status = DiagnosticStatus(name="controller/plan", message="accepted whole_body_plan: 1 transitions",
                                                   values=[KeyValue(key="after_tick_ns", value=str(380_000_000))])
                         rec.write("/diagnostics", DiagnosticArray(status=[status]), log + 2)
+                if periodic and k == 50:  # the controller's periodic diagnostic repeats every acceptance
+                    status = DiagnosticStatus(name="controller", message="transfer",
+                                              values=[KeyValue(key="fsm_state", value="transfer"),
+                                                      KeyValue(key="plans_after_tick_ns", value="380000000")])
+                    rec.write("/diagnostics", DiagnosticArray(status=[status]), log + 2)
 
     write(tmp_path / "with", True)
     write(tmp_path / "without", False)
+    write(tmp_path / "periodic", False, periodic=True)
     run = load_run(tmp_path / "with")
     assert run.plans_after_tick_ns == [380_000_000]
     assert plan_start_stamps(run) == [400_000_000]
     assert plan_start_stamps(load_run(tmp_path / "without")) == [700_000_000]  # the next FSM change
+    # the acceptance itself missed by the recorder (its subscription matched late): the periodic
+    # diagnostic's copy gives the same start
+    repeated = load_run(tmp_path / "periodic")
+    assert repeated.plans_after_tick_ns == [380_000_000] and plan_start_stamps(repeated) == [400_000_000]
 
 
 def test_compare_base_aligns_on_stamps():

@@ -125,6 +125,7 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
     cs = []
     ct, cn, ctg, csurf, cgr = [], [], [], [], []
     ft: dict[str, list] = {}
+    periodic: list | None = None  # the plans' after_tick_ns as the controller's last periodic diagnostic lists them
     min_dt = 0.0 if not max_rate_hz else 1.0 / max_rate_hz
     last = {"js": -1e9, "base": -1e9, "contacts": -1e9}
     with AnyReader([path], default_typestore=make_typestore()) as reader:
@@ -136,8 +137,13 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
         for conn, log_ns, raw in reader.messages(connections=wanted):
             topic = _name(conn.topic)
             if topic == "diagnostics":
-                if b"accepted whole_body_plan" in bytes(raw):  # decode only the plan acceptances
+                data = bytes(raw)
+                if b"accepted whole_body_plan" in data:  # decode only the plan acceptances
                     run.plans_after_tick_ns.extend(_plan_acceptances(deserialize(reader.typestore, raw, conn.msgtype)))
+                elif b"plans_after_tick_ns" in data:  # the controller's periodic diagnostics repeat them
+                    repeated = _repeated_acceptances(deserialize(reader.typestore, raw, conn.msgtype))
+                    if repeated is not None:
+                        periodic = repeated
                 continue
             msg = deserialize(reader.typestore, raw, conn.msgtype)
             if topic == "joint_states":
@@ -221,6 +227,9 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
                         run.request = dict(json.loads(msg.request_json))
                     except (ValueError, TypeError):
                         pass
+    if periodic is not None and len(run.plans_after_tick_ns) != len(run.plans_log_ns) \
+            and len(periodic) == len(run.plans_log_ns):
+        run.plans_after_tick_ns = periodic  # an acceptance the recorder missed (matched late)
     run.js_t = np.asarray(js_t)
     n = len(run.joint_names)
     run.js_q = np.asarray(js_q, float).reshape(len(js_t), n)
@@ -274,6 +283,22 @@ def _plan_acceptances(msg) -> list:
             except ValueError:
                 out.append(None)
     return out
+
+
+def _repeated_acceptances(msg) -> list | None:
+    """The plans' after_tick_ns [ns] (None for -1: started at an activation) that a controller's
+    periodic diagnostic repeats (value ``plans_after_tick_ns``); None when it has none."""
+    for status in msg.status:
+        values = {kv.key: kv.value for kv in status.values}
+        if status.name == "controller" and "plans_after_tick_ns" in values:
+            out = []
+            for item in filter(None, values["plans_after_tick_ns"].split(",")):
+                try:
+                    out.append(int(item) if int(item) >= 0 else None)
+                except ValueError:
+                    out.append(None)
+            return out
+    return None
 
 
 def first_tick_after(stamps_ns, after_ns: int) -> int | None:

@@ -95,6 +95,7 @@ _GRIPPER = {"open": GripperCommand.OPEN, "close": GripperCommand.CLOSE, "positio
 _QP_STATUS = (ControllerState.QP_OK, ControllerState.QP_FAILED, ControllerState.QP_NOT_RUN)
 LATENCY_WINDOW = 20000  # ticks kept for the diagnostics percentiles
 DIAGNOSTICS_EVERY = 200  # ticks between two diagnostics messages
+PLANS_AFTER_KEPT = 64  # accepted plans whose after_tick_ns the periodic diagnostics repeat
 
 
 def default_params() -> ControllerParams:
@@ -192,6 +193,7 @@ class ControllerNode(LifecycleNode):
         # a plan received while inactive (or before the first tick of an activation, which resets
         # the controller to the new world's state): started right after that reset
         self._plan_at_activation = None
+        self._plans_after: list[str] = []  # [ns] after_tick_ns of the plans accepted (periodic diagnostics)
         self._latest: dict[str, object] = {}
         self._stamps: dict[str, int] = {}
         self._received_at = 0.0  # [s] perf_counter when the newest complete state arrived
@@ -499,6 +501,8 @@ class ControllerNode(LifecycleNode):
         # after_tick_ns: the stamp of the last tick before the plan (it starts on the next one; empty
         # when it starts at activation): a bag then knows the plan's first tick from sim time alone
         after = "" if when else str(self._last_stamp)
+        self._plans_after.append(after or "-1")  # repeated in the periodic diagnostics (below)
+        del self._plans_after[:-PLANS_AFTER_KEPT]
         diagnose(self, "controller/plan", text, level=0,
                  values={"request_id": request_id, "transitions": len(plan.transitions), "after_tick_ns": after})
 
@@ -623,7 +627,11 @@ class ControllerNode(LifecycleNode):
         s = out.status
         level = DiagnosticStatus.ERROR if s.qp_status == 1 else DiagnosticStatus.OK
         values = {"fsm_state": s.fsm_state, "qp_failures": str(s.qp_failures), "ticks": str(self.ticks),
-                  "replan_needed": str(s.replan_needed), "fallback": str(s.fallback)}
+                  "replan_needed": str(s.replan_needed), "fallback": str(s.fallback),
+                  # every accepted plan's after_tick_ns (-1: started at an activation), oldest first:
+                  # a recorder that missed the acceptance itself (its subscription matched late)
+                  # still finds each plan's first tick in sim time
+                  "plans_after_tick_ns": ",".join(self._plans_after)}
         values.update({k: f"{v:.4f}" for k, v in self.latency_stats().items()})
         msg = DiagnosticArray()
         msg.header.stamp = to_time(stamp)
