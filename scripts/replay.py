@@ -509,6 +509,7 @@ def reexecute(args) -> int:
 
     new_lost: list[str] = []
     accepted_after: list = []  # per plan the new controller accepted: its last tick before it [ns]
+    periodic_after: list = []  # the same, as the new controller's last periodic diagnostic lists them
 
     def on_diagnostics(msg) -> None:
         for status in msg.status:
@@ -516,12 +517,17 @@ def reexecute(args) -> int:
                 state["plans_accepted"] += 1
                 after = {kv.key: kv.value for kv in status.values}.get("after_tick_ns", "")
                 accepted_after.append(int(after) if after.lstrip("-").isdigit() else None)
+            elif status.name.endswith("controller"):  # the periodic one repeats every acceptance
+                listed = {kv.key: kv.value for kv in status.values}.get("plans_after_tick_ns")
+                if listed is not None:
+                    periodic_after[:] = [int(a) if a.lstrip("-").isdigit() and int(a) >= 0 else None
+                                         for a in listed.split(",") if a]
             elif status.name.endswith("sim_bridge/controller") or status.name.endswith("sim_bridge/command"):
                 new_lost.append(f"{msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9:.3f}: {status.message}")
 
     from diagnostic_msgs.msg import DiagnosticArray
 
-    node.create_subscription(DiagnosticArray, "diagnostics", on_diagnostics, deep)
+    subs["diagnostics"] = node.create_subscription(DiagnosticArray, "diagnostics", on_diagnostics, deep)
 
     subs["base"] = node.create_subscription(Odometry, "sim/base_truth", on_base, deep)
     node.create_subscription(ControllerState, "controller/state", on_state, deep)
@@ -558,6 +564,11 @@ def reexecute(args) -> int:
         if not late:  # autostart: the controller must be active before the bridge's first state,
             # or it drops that state (an inactive lifecycle node ignores it) and the bridge damps t = 0
             wait_until_active(node, "controller", procs["controller"], 60.0)
+        # the controller's two diagnostics writers (its acceptances; its periodic report) matched
+        # here, so that no plan's acceptance is missed (a soft wait: the run goes on without them)
+        deadline = time.monotonic() + 10.0
+        while subs["diagnostics"].get_publisher_count() < 2 and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
         _wait_graph(node, 0.5)
         if starts and first_cmd is not None and starts[0] <= first_cmd:
             # the recorded controller took its first plan on its first tick (the coordinator
@@ -626,19 +637,22 @@ def reexecute(args) -> int:
             pathlib.Path(args.keep_logs).mkdir(parents=True, exist_ok=True)
             (pathlib.Path(args.keep_logs) / f"{name}.log").write_text(text)
     tmp.cleanup()
-    new_starts = []  # the tick at which the new controller took each plan: the first after the
-    # tick it accepted it after (its diagnostic), else the FSM's first change from the gated tick
-    for k, g in enumerate(gated):
-        after = accepted_after[k] if k < len(accepted_after) else None
-        if after is not None:
-            start = first_tick_after(sorted(s for s, _ in fsm), after)
-            if start is not None:
-                new_starts.append(start)
-                continue
-        change = next((fsm[k][0] for k in range(len(fsm)) if fsm[k][0] >= g and (
-            k == 0 or fsm[k][1] != fsm[k - 1][1] or fsm[k][0] < fsm[k - 1][0])), None)
-        if change is not None:
-            new_starts.append(change)
+    # the tick at which the new controller took each plan: the first after the tick it accepted it
+    # after (its acceptance diagnostic, or the periodic diagnostics' copy of it), as the recorded
+    # starts are found; when that is not known for every plan, both runs' starts by the FSM's
+    # first change (from the gated tick here), so that the two are found by the same rule
+    afters = [accepted_after[k] if k < len(accepted_after) and accepted_after[k] is not None
+              else (periodic_after[k] if k < len(periodic_after) else None) for k in range(len(gated))]
+    stamps_fsm = sorted(s for s, _ in fsm)
+    new_starts = [first_tick_after(stamps_fsm, a) for a in afters if a is not None]
+    if len(new_starts) != len(gated) or None in new_starts:
+        starts = plan_start_stamps(run, from_acceptance=False)
+        new_starts = []
+        for g in gated:
+            change = next((fsm[k][0] for k in range(len(fsm)) if fsm[k][0] >= g and (
+                k == 0 or fsm[k][1] != fsm[k - 1][1] or fsm[k][0] < fsm[k - 1][0])), None)
+            if change is not None:
+                new_starts.append(change)
     import struct
 
     recorded_cmds, recorded_states, lost = {}, {}, []

@@ -310,7 +310,7 @@ def first_tick_after(stamps_ns, after_ns: int) -> int | None:
     return None
 
 
-def plan_start_stamps(run: RunData) -> list[int]:
+def plan_start_stamps(run: RunData, from_acceptance: bool = True) -> list[int]:
     """[ns] for each recorded whole_body_plan, the sim stamp of the first controller tick that
     acted on it. When the controller said after which tick it accepted each plan (its
     controller/plan diagnostic's after_tick_ns), the first controller/state after that tick: sim
@@ -318,12 +318,14 @@ def plan_start_stamps(run: RunData) -> list[int]:
     started at an activation) the first controller/state received after the plan whose FSM state
     differs from the one before it (the FSM leaves idle / hold on the tick it takes a plan), or
     that starts a run (the first state, or the first after a sim reset: a controller activated
-    once its plan exists takes it on its first tick)."""
+    once its plan exists takes it on its first tick). ``from_acceptance=False``: that second rule
+    only (to compare with a run whose acceptances are not known)."""
     out = []
     if not len(run.cs_t):
         return out
     stamps = [int(round(t * _NS)) for t in run.cs_t]
-    if len(run.plans_after_tick_ns) == len(run.plans_log_ns) and all(a is not None for a in run.plans_after_tick_ns):
+    if from_acceptance and len(run.plans_after_tick_ns) == len(run.plans_log_ns) \
+            and all(a is not None for a in run.plans_after_tick_ns):
         starts = [first_tick_after(stamps, a) for a in run.plans_after_tick_ns]
         if all(s is not None for s in starts):
             return starts
