@@ -5,12 +5,20 @@ maps (success like the paper's Fig. 9, and planning time).
 
     scripts/sweep.py [--grid FILE] [--robot g1] [--workers 2] [--timeout 120] [--steps 2]
                      [--ladders 70/0.20,90/0.35] [--out-dir build/sweep] [--backend local|ray] [--resume]
+                     [--execute]
+
+With ``--execute`` every ladder is planned as a climb plans it (config/climb.yaml's planner
+overrides) and each plan is executed in the simulator (in process, lock-step, QP, one period of
+actuation latency: climb_coordinator.sweep_execute): the CSV gains the execution's columns, the
+PNG the executed map beside the planned one, the summary executed success over the grid and
+over the planned ladders.
 
 Workers are pluggable: local processes by default; ``--backend ray`` sends the same tasks to an
 existing Ray cluster (``--ray-address``, default: the RAY_ADDRESS variable or a local instance).
 Every finished ladder is appended to ``<name>.partial.csv`` at once (a killed sweep keeps what it
-measured); ``--resume`` reuses that journal's rows planned by the same code (git commit, planner
-code and config unchanged), robot, steps, timeout and seed, and plans only the other ladders.
+measured); ``--resume`` reuses that journal's rows planned by the same code (src, config and scripts as
+committed; a commit of docs or tests keeps the rows), robot, steps, timeout and seed (and, with
+``--execute``, executed), and plans only the other ladders.
 The last line on standard output is a JSON summary (success rate, median planning time, failures
 by category, the CSV and PNG paths).
 """
@@ -65,9 +73,18 @@ class Progress:
         self.stream.flush()
 
 
-def run_local(tasks, workers: int, progress: Progress, done) -> list[dict]:
+def task_runner(execute: bool):
+    """What a worker runs for one task: plan (planner_node.sweep), or plan and execute."""
+    if execute:
+        from climb_coordinator.sweep_execute import run_task
+    else:
+        from planner_node.sweep import run_task
+    return run_task
+
+
+def run_local(tasks, workers: int, progress: Progress, done, execute: bool = False) -> list[dict]:
     """``done(row)`` is called in this process as each row arrives (stamps and journals it)."""
-    from planner_node.sweep import run_task
+    run_task = task_runner(execute)
 
     rows = []
     if workers <= 1:
@@ -86,7 +103,7 @@ def run_local(tasks, workers: int, progress: Progress, done) -> list[dict]:
     return rows
 
 
-def run_ray(tasks, address: str | None, progress: Progress, done) -> list[dict]:
+def run_ray(tasks, address: str | None, progress: Progress, done, execute: bool = False) -> list[dict]:
     import os
 
     address = address or os.environ.get("RAY_ADDRESS") or None
@@ -101,7 +118,7 @@ def run_ray(tasks, address: str | None, progress: Progress, done) -> list[dict]:
 
         raise SpecError("backend", "ray is not installed: install it (pip install 'ray[default]') to use "
                                    "--backend ray, or use the default local backend") from None
-    from planner_node.sweep import run_task
+    run_task = task_runner(execute)
 
     options = dict(ignore_reinit_error=True, log_to_driver=False,
                    runtime_env={"env_vars": {"CLIMB_ROOT": str(ROOT)}})
@@ -135,6 +152,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ray-address", default=None)
     ap.add_argument("--resume", action="store_true",
                     help="reuse the rows of <name>.partial.csv planned by the same code and settings")
+    ap.add_argument("--execute", action="store_true",
+                    help="also execute every planned ladder in the simulator (planned as a climb plans it)")
     args = ap.parse_args(argv)
 
     from climb_core.errors import SpecError
@@ -143,7 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         grid = sweep.load_grid(args.grid)
         select = parse_ladders(args.ladders) if args.ladders else None
-        tasks = sweep.make_tasks(grid, args.robot, args.steps, args.timeout, args.seed, args.strategy, select)
+        tasks = sweep.make_tasks(grid, args.robot, args.steps, args.timeout, args.seed, args.strategy, select,
+                                 execute=args.execute)
         if args.workers < 1:
             raise SpecError("workers", f"must be >= 1, got {args.workers}")
         stem = args.name or f"{args.robot}_{args.strategy or 'default'}"
@@ -165,8 +185,8 @@ def main(argv: list[str] | None = None) -> int:
 
         progress = Progress(len(todo))
         t0 = time.monotonic()
-        rows = reused + (run_ray(todo, args.ray_address, progress, done) if args.backend == "ray"
-                         else run_local(todo, args.workers, progress, done))
+        rows = reused + (run_ray(todo, args.ray_address, progress, done, args.execute) if args.backend == "ray"
+                         else run_local(todo, args.workers, progress, done, args.execute))
     except SpecError as exc:
         print(f"error: {exc}", file=sys.stderr)
         print(json.dumps({"success": False, "failure_reason": f"spec: {exc}"}))
@@ -174,7 +194,8 @@ def main(argv: list[str] | None = None) -> int:
     csv_path = sweep.write_csv(rows, out / f"{stem}.csv")
     journal.close()
     png_path = sweep.heat_maps(rows, out / f"{stem}.png",
-                               title=f"{args.robot}: {tasks[0].steps}-step climbs, {tasks[0].timeout_s:g} s cutoff")
+                               title=f"{args.robot}: {tasks[0].steps}-step climbs, {tasks[0].timeout_s:g} s cutoff"
+                                     + (", planned and executed" if args.execute else ""))
     stats = sweep.statistics(rows)
     stats.update(csv=str(csv_path), png=str(png_path), wall_time_s=round(time.monotonic() - t0, 1),
                  robot=args.robot, backend=args.backend, workers=args.workers, reused=len(reused),

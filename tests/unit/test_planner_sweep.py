@@ -141,3 +141,50 @@ def test_resumed_sweep_reuses_the_journal_instead_of_planning(tmp_path):
     (row,) = sweep.read_csv(summary["csv"])
     assert row["plan_time_s"] == 4.25 and row["code_version"] == version  # the journal's row, not a new plan
     assert not journal.path.exists()
+
+
+def test_an_executing_sweep_reuses_executed_rows_only(tmp_path):
+    """``--execute`` tasks take a journal row only if it was executed (a planning-only row of the
+    same code is planned and executed again)."""
+    tasks = sweep.make_tasks(grid_doc(), "g1", timeout_s=60.0, select=[(70.0, 0.20), (71.0, 0.20)], execute=True)
+    journal = sweep.Journal(tmp_path / "x.partial.csv")
+    journal.start([journal_row(70.0, 0.20, "abc", executed=True, exec_rungs_reached=2),
+                   journal_row(71.0, 0.20, "abc")])  # planned only
+    kept, ignored = journal.reusable(tasks, "abc")
+    assert [(r["inclination_deg"], r["executed"]) for r in kept] == [(70.0, True)] and ignored == 1
+
+
+def test_execution_statistics_and_the_executed_map(tmp_path):
+    """Executed success over the grid and over the planned ladders, what stopped the others, and a
+    third panel in the PNG; a planning-only sweep has none of it."""
+    rows = [journal_row(70.0, 0.20, "v", executed=True),
+            journal_row(70.0, 0.23, "v", executed=False, exec_failure="fell: base height 0.2 m < 0.39 m"),
+            journal_row(72.0, 0.20, "v", success=False, failure_constraint="time_limit", executed=False,
+                        exec_failure="not planned"),
+            journal_row(72.0, 0.23, "v", executed=True)]
+    path = sweep.write_csv(rows, tmp_path / "e.csv")
+    back = sweep.read_csv(path)
+    assert [r["executed"] for r in back] == [True, False, False, True]
+    st = sweep.statistics(back)
+    assert st["n_success"] == 3 and st["n_executed_success"] == 2
+    assert st["executed_rate"] == pytest.approx(0.5) and st["executed_of_planned"] == pytest.approx(2 / 3)
+    assert st["execution_failures"] == {"fell": 1}
+    png = sweep.heat_maps(back, tmp_path / "e.png")
+    import matplotlib.image as mpimg
+
+    wide = mpimg.imread(png).shape[1]
+    planning_only = [{k: v for k, v in r.items() if not k.startswith("exec")} for r in back]
+    assert "executed_rate" not in sweep.statistics(planning_only)
+    assert mpimg.imread(sweep.heat_maps(planning_only, tmp_path / "p.png")).shape[1] < 0.75 * wide
+
+
+def test_code_version_names_the_code_trees_not_the_commit():
+    """Rows stay reusable across commits of docs and tests: the version hashes src, config and
+    scripts only."""
+    version = sweep.code_version(ROOT)
+    assert version != "unknown"  # the tests run in a git checkout (a clone in CI)
+    trees = subprocess.run(["git", "rev-parse", "HEAD:src", "HEAD:config", "HEAD:scripts"], cwd=ROOT,
+                           capture_output=True, text=True, check=True).stdout.split()
+    import hashlib
+
+    assert version.split("+")[0] == hashlib.sha1(" ".join(trees).encode()).hexdigest()[:10]

@@ -48,7 +48,7 @@ from .settings import ClimbSettings, apply_planner_overrides, load_climb_setting
 
 __all__ = ["MODES", "ClimbRequest", "ClimbResult", "base_summary", "validate", "check_request", "plan_duration",
            "run_climb", "execute", "clip_plan_to_limits", "snapshot", "LibraryPlanSource", "InProcessExecutor",
-           "BackendJudge", "SearchPlanSource", "STOP_STATES"]
+           "BackendJudge", "SearchPlanSource", "GivenPlanSource", "StoredPlanSource", "STOP_STATES"]
 
 
 @dataclass
@@ -195,23 +195,34 @@ class SearchPlanSource:
                            stages_s=stages, start_projection_mm=projection)
 
 
-class StoredPlanSource:
-    """Plan source port of a plan made before (``planner_node.plan_io`` JSON, e.g. scripts/plan.py
-    --out): the first plan as stored (clipped to the joint limits like a fresh one), no replan."""
+class GivenPlanSource:
+    """Plan source port of a plan made by the caller (a sweep's, a stored one): the first plan as
+    given (clipped to the joint limits like a fresh one); replans from ``replans`` (another plan
+    source), or none."""
+
+    def __init__(self, plan: WholeBodyPlan, robot, cs: ClimbSettings, replans=None):
+        if plan.robot != robot.config.name:
+            raise SpecError("plan.robot", f"the given plan is for {plan.robot!r}, not {robot.config.name!r}")
+        self.plan_, self.robot, self.cs, self.replans = plan, robot, cs, replans
+
+    def plan(self, steps: int, start=None, surface_offsets=None) -> PlanOutcome:
+        if start is not None:
+            if self.replans is None:
+                return PlanOutcome(False, None, 0.0, failure="replan: a given plan is not replanned")
+            return self.replans.plan(steps, start, surface_offsets)
+        plan = clip_plan_to_limits(self.plan_, self.robot, self.cs.plan_joint_limit_margin)
+        return PlanOutcome(True, plan, 0.0, len(plan.transitions) + 1)
+
+
+class StoredPlanSource(GivenPlanSource):
+    """A :class:`GivenPlanSource` of a plan made before (``planner_node.plan_io`` JSON, e.g.
+    scripts/plan.py --out), no replan."""
 
     def __init__(self, path, robot, cs: ClimbSettings):
         from planner_node.plan_io import load_plan
 
-        self.plan_, self.metadata = load_plan(path)
-        if self.plan_.robot != robot.config.name:
-            raise SpecError("plan.robot", f"the stored plan is for {self.plan_.robot!r}, not {robot.config.name!r}")
-        self.robot, self.cs = robot, cs
-
-    def plan(self, steps: int, start=None, surface_offsets=None) -> PlanOutcome:
-        if start is not None:
-            return PlanOutcome(False, None, 0.0, failure="replan: a stored plan is not replanned")
-        plan = clip_plan_to_limits(self.plan_, self.robot, self.cs.plan_joint_limit_margin)
-        return PlanOutcome(True, plan, 0.0, len(plan.transitions) + 1)
+        plan, self.metadata = load_plan(path)
+        super().__init__(plan, robot, cs)
 
 
 class BackendJudge:

@@ -25,7 +25,11 @@ from climb_core.errors import SpecError
 
 CSV_FIELDS = ("inclination_deg", "rung_spacing", "success", "plan_time_s", "plan_cpu_s", "failure_category",
               "failure_constraint", "frontier_constraint", "failure_detail", "rungs_reached", "n_stances", "attempts",
-              "backtracks", "robot", "strategy", "steps", "timeout_s", "seed", "code_version")
+              "backtracks", "robot", "strategy", "steps", "timeout_s", "seed", "code_version",
+              # --execute (climb_coordinator.sweep_execute): the planned climb executed in the simulator;
+              # empty in a planning-only sweep
+              "executed", "exec_failure", "exec_rungs_reached", "exec_fell", "exec_replans", "exec_qp_failures",
+              "exec_sim_time_s", "exec_wall_time_s")
 
 
 @dataclass(frozen=True)
@@ -38,6 +42,7 @@ class SweepTask:
     timeout_s: float
     seed: int
     strategy: str = ""
+    execute: bool = False  # also execute the plan in the simulator (climb_coordinator.sweep_execute)
 
     @property
     def point(self) -> tuple[float, float]:
@@ -81,7 +86,8 @@ def load_grid(path: str | pathlib.Path) -> dict:
 
 
 def make_tasks(grid: dict, robot: str, steps: int | None = None, timeout_s: float | None = None, seed: int = 0,
-               strategy: str = "", select: Iterable[tuple[float, float]] | None = None) -> list[SweepTask]:
+               strategy: str = "", select: Iterable[tuple[float, float]] | None = None,
+               execute: bool = False) -> list[SweepTask]:
     incls = _range("inclination_deg", grid["grid"]["inclination_deg"])
     spacings = _range("rung_spacing", grid["grid"]["rung_spacing"])
     steps = int(grid.get("steps", 2) if steps is None else steps)
@@ -96,36 +102,40 @@ def make_tasks(grid: dict, robot: str, steps: int | None = None, timeout_s: floa
             spec.setdefault("ladder", {})
             spec["ladder"]["inclination_deg"] = float(inc)
             spec["ladder"]["rung_spacing"] = float(sp)
-            tasks.append(SweepTask(inc, sp, spec, robot, steps, timeout_s, seed, strategy))
+            tasks.append(SweepTask(inc, sp, spec, robot, steps, timeout_s, seed, strategy, execute))
     if wanted is not None and len(tasks) != len(wanted):
         raise SpecError("ladders", "some selected (inclination, spacing) pairs are not grid points")
     return tasks
 
 
 def code_version(root: str | pathlib.Path | None = None) -> str:
-    """The project's git commit (short hash), ``+dirty`` when planner code or config differs from
-    it: a sweep's rows say which code planned them, and a resumed sweep only reuses rows of the
-    same version. ``unknown`` outside a git checkout."""
+    """The version of the code a row was made with: a short hash of the git trees of src, config
+    and scripts at HEAD (a commit of docs or tests keeps it: a long sweep resumes across such
+    commits), ``+dirty`` when any of them differs from HEAD; a resumed sweep only reuses rows of
+    the same version. ``unknown`` outside a git checkout."""
+    import hashlib
     import subprocess
 
     from climb_core.ros_env import project_root
 
     root = pathlib.Path(root) if root is not None else project_root()
+    dirs = ("src", "config", "scripts")
     try:
-        head = subprocess.run(["git", "rev-parse", "--short=10", "HEAD"], cwd=root, capture_output=True,
-                              text=True, timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "src", "config", "scripts"], cwd=root,
+        trees = subprocess.run(["git", "rev-parse", *(f"HEAD:{d}" for d in dirs)], cwd=root, capture_output=True,
+                               text=True, timeout=10, check=True).stdout.split()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", *dirs], cwd=root,
                                capture_output=True, text=True, timeout=10, check=True).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         return "unknown"
-    return head + ("+dirty" if dirty else "")
+    return hashlib.sha1(" ".join(trees).encode()).hexdigest()[:10] + ("+dirty" if dirty else "")
 
 
 def _same_run(row: dict, task: SweepTask, version: str) -> bool:
     try:
         return (row.get("robot") == task.robot and int(row.get("steps") or -1) == task.steps
                 and float(row.get("timeout_s") or -1.0) == float(task.timeout_s) and int(row.get("seed") or -1) == task.seed
-                and row.get("code_version") == version and (not task.strategy or row.get("strategy") == task.strategy))
+                and row.get("code_version") == version and (not task.strategy or row.get("strategy") == task.strategy)
+                and (not task.execute or row.get("executed") not in ("", None)))
     except ValueError:
         return False
 
@@ -193,8 +203,24 @@ def frontier(res) -> str:
     return frontier_failure(res.report.failures, res.report.deepest)[0]
 
 
+@dataclass
+class Planned:
+    """What :func:`plan_task` made beside its row (None fields after a spec error)."""
+
+    robot: Any = None
+    env: Any = None
+    settings: Any = None
+    result: Any = None  # ClimbPlanResult
+
+
 def run_task(task: SweepTask) -> dict:
     """Plan one grid ladder; never raises (errors become a failed row)."""
+    return plan_task(task)[0]
+
+
+def plan_task(task: SweepTask, settings=None) -> tuple[dict, Planned]:
+    """:func:`run_task`'s row and the models and plan behind it (an executing sweep runs the plan);
+    ``settings``: the planner settings (default: config/planner.yaml), the task's strategy on top."""
     import dataclasses
 
     from climb_core.environment import build_environment
@@ -207,14 +233,16 @@ def run_task(task: SweepTask) -> dict:
     row = {"inclination_deg": task.inclination_deg, "rung_spacing": task.rung_spacing, "robot": task.robot,
            "steps": task.steps, "timeout_s": task.timeout_s, "seed": task.seed}
     t0 = time.perf_counter()
+    planned = Planned()
     try:
-        settings = load_settings()
+        settings = settings or load_settings()
         if task.strategy:
             settings = dataclasses.replace(settings, planning=dataclasses.replace(settings.planning,
                                                                                   strategy=task.strategy))
         robot = load_robot(task.robot)
         env = build_environment(parse_scenario(task.spec, name=task.name))
         res = plan_climb(robot, env, task.steps, settings=settings, seed=task.seed, timeout_s=task.timeout_s)
+        planned = Planned(robot, env, settings, res)
         s = res.summary()
         row.update(success=bool(res.success), plan_time_s=round(res.plan_time_s, 3),
                    plan_cpu_s=round(res.plan_cpu_s, 3),
@@ -229,7 +257,7 @@ def run_task(task: SweepTask) -> dict:
                    failure_detail=str(exc), rungs_reached=0, n_stances=0, attempts=0, backtracks=0,
                    strategy=task.strategy)
     row["failure_category"] = failure_category(row.get("failure_constraint", ""))
-    return row
+    return row, planned
 
 
 def write_csv(rows: list[dict], path: str | pathlib.Path) -> pathlib.Path:
@@ -251,7 +279,14 @@ def read_csv(path: str | pathlib.Path) -> list[dict]:
         r["rung_spacing"] = float(r["rung_spacing"])
         r["success"] = r["success"] in ("True", "true", "1")
         r["plan_time_s"] = float(r["plan_time_s"])
+        ex = r.get("executed")  # "" or absent: not executed (a planning-only sweep or journal)
+        r["executed"] = None if ex in ("", None) else ex in ("True", "true", "1")
     return rows
+
+
+def executed_rows(rows: list[dict]) -> list[dict]:
+    """The rows of an executing sweep (``executed`` True or False; None: the ladder was not run)."""
+    return [r for r in rows if r.get("executed") is not None]
 
 
 def statistics(rows: list[dict]) -> dict:
@@ -267,7 +302,27 @@ def statistics(rows: list[dict]) -> dict:
             "median_plan_cpu_s": float(np.median([float(r.get("plan_cpu_s") or 0.0) for r in ok])) if ok
             else float("nan"),
             "p90_plan_time_s": float(np.percentile(times, 90)) if times else float("nan"),
-            "failures_by_category": dict(sorted(cats.items(), key=lambda kv: -kv[1]))}
+            "failures_by_category": dict(sorted(cats.items(), key=lambda kv: -kv[1])),
+            **execution_statistics(rows)}
+
+
+def execution_statistics(rows: list[dict]) -> dict:
+    """An executing sweep's figures: executed successes over the grid and over the planned
+    ladders, and what stopped the executions of planned ladders (the failure reason's first word);
+    {} for a planning-only sweep."""
+    ran = executed_rows(rows)
+    if not ran:
+        return {}
+    planned = [r for r in ran if r["success"]]
+    ok = [r for r in planned if r["executed"]]
+    why: dict[str, int] = {}
+    for r in planned:
+        if not r["executed"]:
+            key = (str(r.get("exec_failure") or "unknown").split(":", 1)[0].split(" ", 1)[0]) or "unknown"
+            why[key] = why.get(key, 0) + 1
+    return {"n_executed_success": len(ok), "executed_rate": len(ok) / len(ran),
+            "executed_of_planned": (len(ok) / len(planned)) if planned else 0.0,
+            "execution_failures": dict(sorted(why.items(), key=lambda kv: -kv[1]))}
 
 
 def heat_maps(rows: list[dict], path: str | pathlib.Path, title: str = "") -> pathlib.Path:
@@ -295,7 +350,8 @@ def heat_maps(rows: list[dict], path: str | pathlib.Path, title: str = "") -> pa
     palette = ["black", "tab:red", "tab:orange", "tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:pink",
                "tab:gray", "tab:olive", "tab:cyan"]
     cmap = ListedColormap(palette[:len(cats) + 1])
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5.2))
+    ran = executed_rows(rows)
+    fig, axes = plt.subplots(1, 3 if ran else 2, figsize=(19.5 if ran else 13, 5.2))
     extent = (incls[0] - 0.5, incls[-1] + 0.5, 100 * sps[0] - 0.5, 100 * sps[-1] + 0.5)
     ax = axes[0]
     ax.imshow(S, origin="lower", aspect="auto", cmap=cmap, vmin=-0.5, vmax=len(cats) + 0.5, extent=extent,
@@ -308,7 +364,22 @@ def heat_maps(rows: list[dict], path: str | pathlib.Path, title: str = "") -> pa
               [plt.Rectangle((0, 0), 1, 1, color=palette[codes[c]]) for c in cats]
     ax.legend(handles, ["planned"] + [f"stopped by: {c}" for c in cats], loc="upper left", fontsize=7,
               bbox_to_anchor=(1.0, 1.0))
-    ax = axes[1]
+    if ran:  # executed beside planned: black = planned and executed, grey = planned, fell or stopped
+        E = np.full((len(sps), len(incls)), np.nan)
+        for r in ran:
+            E[sps.index(r["rung_spacing"]), incls.index(r["inclination_deg"])] = (
+                0 if r["executed"] else 1 if r["success"] else 2)
+        ax = axes[1]
+        ax.imshow(E, origin="lower", aspect="auto", cmap=ListedColormap(["black", "tab:gray", "white"]),
+                  vmin=-0.5, vmax=2.5, extent=extent, interpolation="nearest")
+        ax.set_title(f"executed (black): {st['n_executed_success']}/{len(ran)} = {100 * st['executed_rate']:.0f} %, "
+                     f"{100 * st['executed_of_planned']:.0f} % of planned")
+        ax.set_xlabel("inclination [deg]")
+        ax.set_ylabel("rung spacing [cm]")
+        ax.legend([plt.Rectangle((0, 0), 1, 1, color=c, ec="k") for c in ("black", "tab:gray", "white")],
+                  ["executed", "planned, not executed", "not planned"], loc="upper left", fontsize=7,
+                  bbox_to_anchor=(1.0, 1.0))
+    ax = axes[-1]
     im = ax.imshow(T, origin="lower", aspect="auto", cmap="viridis", extent=extent, interpolation="nearest")
     ax.set_title(f"planning time [s] (median of successes {st['median_plan_time_s']:.2f} s)")
     ax.set_xlabel("inclination [deg]")
