@@ -302,7 +302,8 @@ def reexecute(args) -> int:
     import numpy as np
     import yaml
 
-    from climb_coordinator.report import compare_base, first_tick_after, load_run, plan_start_stamps
+    from climb_coordinator.report import (compare_base, first_tick_after, load_run, plan_acceptances,
+                                          plan_start_stamps, repeated_acceptances)
     from msgs_py.bag import read_bag
 
     bag = pathlib.Path(args.bag)
@@ -512,17 +513,14 @@ def reexecute(args) -> int:
     periodic_after: list = []  # the same, as the new controller's last periodic diagnostic lists them
 
     def on_diagnostics(msg) -> None:
+        accepted = plan_acceptances(msg)
+        state["plans_accepted"] += len(accepted)
+        accepted_after.extend(accepted)
+        repeated = repeated_acceptances(msg)  # the periodic one repeats every acceptance
+        if repeated is not None:
+            periodic_after[:] = repeated
         for status in msg.status:
-            if status.name.endswith("controller/plan") and status.message.startswith("accepted"):
-                state["plans_accepted"] += 1
-                after = {kv.key: kv.value for kv in status.values}.get("after_tick_ns", "")
-                accepted_after.append(int(after) if after.lstrip("-").isdigit() else None)
-            elif status.name.endswith("controller"):  # the periodic one repeats every acceptance
-                listed = {kv.key: kv.value for kv in status.values}.get("plans_after_tick_ns")
-                if listed is not None:
-                    periodic_after[:] = [int(a) if a.lstrip("-").isdigit() and int(a) >= 0 else None
-                                         for a in listed.split(",") if a]
-            elif status.name.endswith("sim_bridge/controller") or status.name.endswith("sim_bridge/command"):
+            if status.name.endswith("sim_bridge/controller") or status.name.endswith("sim_bridge/command"):
                 new_lost.append(f"{msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9:.3f}: {status.message}")
 
     from diagnostic_msgs.msg import DiagnosticArray

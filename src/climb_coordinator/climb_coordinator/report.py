@@ -139,9 +139,9 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
             if topic == "diagnostics":
                 data = bytes(raw)
                 if b"accepted whole_body_plan" in data:  # decode only the plan acceptances
-                    run.plans_after_tick_ns.extend(_plan_acceptances(deserialize(reader.typestore, raw, conn.msgtype)))
+                    run.plans_after_tick_ns.extend(plan_acceptances(deserialize(reader.typestore, raw, conn.msgtype)))
                 elif b"plans_after_tick_ns" in data:  # the controller's periodic diagnostics repeat them
-                    repeated = _repeated_acceptances(deserialize(reader.typestore, raw, conn.msgtype))
+                    repeated = repeated_acceptances(deserialize(reader.typestore, raw, conn.msgtype))
                     if repeated is not None:
                         periodic = repeated
                 continue
@@ -271,7 +271,7 @@ def fsm_segments(t: np.ndarray, states: list[str]) -> list[tuple[str, float, flo
     return out
 
 
-def _plan_acceptances(msg) -> list:
+def plan_acceptances(msg) -> list:
     """The after_tick_ns [ns] (None when empty or unreadable) of each controller/plan status of a
     DiagnosticArray that says a whole_body_plan was accepted."""
     out = []
@@ -285,7 +285,7 @@ def _plan_acceptances(msg) -> list:
     return out
 
 
-def _repeated_acceptances(msg) -> list | None:
+def repeated_acceptances(msg) -> list | None:
     """The plans' after_tick_ns [ns] (None for -1: started at an activation) that a controller's
     periodic diagnostic repeats (value ``plans_after_tick_ns``); None when it has none."""
     for status in msg.status:
@@ -323,9 +323,9 @@ def plan_start_stamps(run: RunData, from_acceptance: bool = True) -> list[int]:
     out = []
     if not len(run.cs_t):
         return out
-    stamps = [int(round(t * _NS)) for t in run.cs_t]
     if from_acceptance and len(run.plans_after_tick_ns) == len(run.plans_log_ns) \
             and all(a is not None for a in run.plans_after_tick_ns):
+        stamps = [int(round(t * _NS)) for t in run.cs_t]
         starts = [first_tick_after(stamps, a) for a in run.plans_after_tick_ns]
         if all(s is not None for s in starts):
             return starts

@@ -30,14 +30,14 @@ from .params import GraspParams
 if TYPE_CHECKING:  # pragma: no cover
     from .pybullet_backend import PyBulletBackend
 
-GRASPABLE_ROLES = ("rung", "rail")  # ladder roles a hand may close around (when bilateral)
+GRASPABLE_ROLES = ("rung", "rail", "scene")  # roles a hand may close around (when bilateral): a ladder's, a scene's
 
 
 def graspable(surface) -> bool:
     """A hand may close around ``surface``: a bilateral ladder rung or rail, or a scene surface
     tagged ``bilateral`` (a handrail, a roll-cage bar: scene_spec.md). Whether the hand fits
     around it is :func:`climb_core.holds.grasp_fits`."""
-    return bool(getattr(surface, "bilateral", False)) and (surface.role in GRASPABLE_ROLES or surface.role == "scene")
+    return bool(getattr(surface, "bilateral", False)) and surface.role in GRASPABLE_ROLES
 
 
 @dataclass
