@@ -404,7 +404,7 @@ def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
     from climb_core.ladder import load_scenario
     from climb_core.robot import load_robot
     from planner_node.primitives import load_library
-    from planner_node.settings import load_settings
+    from planner_node.settings import load_settings, walked
 
     validate(req)
     cs = settings or load_climb_settings()
@@ -412,9 +412,10 @@ def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
     env = build_environment(scenario)
     robot = load_robot(req.robot)
     overrides = dict(cs.planner_overrides)
-    if getattr(scenario, "ladder", None) is None:  # a scene: the planner's own torque shares
+    base = load_settings()
+    if walked(scenario, base):  # a scene, stairs: the planner's own torque shares
         overrides.update(cs.scene_planner_overrides)
-    psettings = apply_planner_overrides(load_settings(), overrides)
+    psettings = apply_planner_overrides(base, overrides)
     p = psettings.planning
     if req.strategy == "search":
         posture = req.start_posture or "standing"

@@ -276,6 +276,11 @@ class _Search:
         # a ladder is climbed on three supports; elsewhere the robot also walks (single support)
         on_ladder = getattr(env, "ladder", None) is not None
         self.min_contacts = params.min_contacts if on_ladder else params.min_contacts_scene
+        ladder = getattr(env, "ladder", None)
+        self.com_over_feet = (on_ladder and params.com_over_feet_weight > 0.0
+                              and float(ladder.inclination_deg) <= params.com_over_feet_max_incline_deg)
+        if self.com_over_feet:
+            self.pcik_com = dataclasses.replace(self.pcik_params, com_weight=params.com_over_feet_weight)
         self.stats = SearchStats()
         self.t0 = time.perf_counter()
         self.best: tuple[float, float] = (math.inf, math.inf)  # closest (configuration, base) distance [m]
@@ -305,9 +310,11 @@ class _Search:
         (SpecError: e.g. a sole on a surface shape it cannot stand on)."""
         t = time.perf_counter()
         self.stats.ik_calls += 1
+        com = self._feet_centroid(contacts)
         try:
-            res = pcik.solve(self.robot, self.env, q_seed, contacts, q_target=q_target, params=self.pcik_params,
-                             feasibility_cfg=self.cfg)
+            res = pcik.solve(self.robot, self.env, q_seed, contacts, q_target=q_target,
+                             params=self.pcik_params if com is None else self.pcik_com,
+                             feasibility_cfg=self.cfg, com_target=com)
         except SpecError:
             res = None
         self.stats.ik_time_s += time.perf_counter() - t
@@ -315,6 +322,14 @@ class _Search:
             self.stats.ik_failures += 1
             return None
         return res
+
+    def _feet_centroid(self, contacts: list[pcik.ContactSpec]) -> np.ndarray | None:
+        """The CoM target of ``com_over_feet`` (x, y of the held feet's hold centres), else None."""
+        if not self.com_over_feet:
+            return None
+        feet = [c.hold.centre[:2] for c in contacts
+                if c.hold is not None and c.type == pcik.REGULAR and limb_type(c.limb) == "foot"]
+        return np.mean(feet, axis=0) if feet else None
 
     def _priority(self, node: Node, target: _Target, after: _Target | None = None,
                   floating: tuple[str, np.ndarray] | None = None) -> float:

@@ -776,9 +776,28 @@ def ladder_goal_position(robot: Any, env: Any, k: int) -> np.ndarray:
     return env.rung(k).position + offset
 
 
-def ladder_goals(robot: Any, env: Any, rungs: int, tolerance: float) -> list[Goal]:
-    """Standing-on-rung goals for rungs 1..``rungs`` (one rung apart), facing the ladder, climbing."""
+def tread_goal_position(robot: Any, env: Any, k: int) -> np.ndarray:
+    """Base position of standing upright on tread k [m]: the ``standing`` fixture's base over its
+    feet, moved onto the top of the tread's centre."""
+    from climb_core import fixtures
+
+    stance, q = fixtures.get("standing", robot, env)
+    feet = np.mean([h.centre for h in stance.holds], axis=0)
+    tread = env.rung(k)
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * tread.half_extents
+    top = tread.position[2] + float(np.max(corners @ tread.rotation.T[:, 2]))
+    return np.array([tread.position[0], tread.position[1], top]) + (q[:3] - feet)
+
+
+def ladder_goals(robot: Any, env: Any, rungs: int, tolerance: float,
+                 params: GuidePathParams | None = None) -> list[Goal]:
+    """Goals for rungs 1..``rungs`` (one rung apart), facing the ladder: standing on each rung in the
+    climbing stance, or, on a ladder no steeper than ``walk_max_incline_deg`` (stairs), standing
+    upright on each tread."""
+    params = params or load_settings().guide_path
     yaw = float(math.atan2(env.T_world_ladder[1, 0], env.T_world_ladder[0, 0]))
+    if float(env.ladder.inclination_deg) <= params.walk_max_incline_deg:
+        return [Goal(tread_goal_position(robot, env, k), tolerance, yaw, "standing") for k in range(1, rungs + 1)]
     return [Goal(ladder_goal_position(robot, env, k), tolerance, yaw, "climbing") for k in range(1, rungs + 1)]
 
 
@@ -795,7 +814,7 @@ def plan_for_environment(robot: Any, env: Any, q_start: np.ndarray, rungs: int |
         tol = getattr(goal, "tolerance", None) or (goal.get("tolerance") if isinstance(goal, dict) else None)
         goals = [Goal(_vec3(position, "goal.base_position"), float(tol), posture="standing")]
     elif rungs is not None:
-        goals = ladder_goals(robot, env, int(rungs), tolerance)
+        goals = ladder_goals(robot, env, int(rungs), tolerance, params)
     else:
         raise SpecError("guide_path.goal", "the environment has no goal and no rung count was given")
     return plan_guide_path_through(robot, env, q_start, goals, params, seed, time_limit_s)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 from dataclasses import dataclass
+from typing import Any
 
 from climb_core.params import group, load_params, param
 
@@ -181,6 +182,13 @@ class ContactSearchParams:
         "on a ladder, contacts are removed only from sets with more than this (3: the quasi-static climbing gait)"))
     min_contacts_scene: int = param(1, unit="-", min=1, description=(
         "in a scene without a ladder, the same bound (1: single support, the robot walks)"))
+    com_over_feet_max_incline_deg: float = param(50.0, unit="deg", min=0.0, max=90.0, description=(
+        "on a ladder this steep or less (stairs: 20-50 deg), the search's IK pulls the CoM over the feet "
+        "that hold (their holds' centroid, x and y): a hand may let go of a rail without the robot hanging "
+        "back on the other (steeper ladders are climbed with the CoM behind the rungs)"))
+    com_over_feet_weight: float = param(3000.0, unit="1/m^2", min=0.0, description=(
+        "the search's IK: cost of the CoM's horizontal distance to the feet's centroid where "
+        "com_over_feet_max_incline_deg applies (0: off)"))
     repair_rounds: int = param(4, unit="-", min=0, description=(
         "in process: a searched plan whose adaptation is stuck at a transition is searched again without "
         "that transition, up to this many times"))
@@ -232,6 +240,10 @@ class GuidePathParams:
     yaw_sigma: float = param(0.2, unit="rad", min=0.0, description="std dev of a biased sample's yaw around the goal direction")
     goal_samples: int = param(40, unit="-", min=1, description="goal configurations tried within the tolerance")
     shortcut_iterations: int = param(30, unit="-", min=0, description="random shortcut attempts on the found path")
+    walk_max_incline_deg: float = param(50.0, unit="deg", min=0.0, max=90.0, description=(
+        "a ladder this steep or less (stairs: 20-50 deg) is walked up: its milestones stand on the treads, "
+        "the base over the feet in the standing posture, instead of the climbing stance's (the base behind "
+        "the rungs)"))
     time_limit_s: float = param(5.0, unit="s", min=0.01, description="wall-time limit of one guide path")
     seed: int = param(0, unit="-", min=0, description="random seed of the sampler")
 
@@ -349,9 +361,17 @@ def read_climb_overrides(path: str | pathlib.Path = CLIMB_OVERRIDES_FILE, key: s
     return dict(overrides)
 
 
+def walked(scenario: Any, settings: PlannerSettings) -> bool:
+    """Whether the robot walks through ``scenario`` rather than climbs it: a scene without a ladder,
+    or a ladder no steeper than ``guide_path.walk_max_incline_deg`` (stairs). A walked scenario plans
+    with config/climb.yaml's ``scene_planner_overrides`` on top of its ``planner_overrides``."""
+    ladder = getattr(scenario, "ladder", None)
+    return ladder is None or float(ladder.inclination_deg) <= settings.guide_path.walk_max_incline_deg
+
+
 def scene_settings(settings: PlannerSettings, overrides_file: str | pathlib.Path = CLIMB_OVERRIDES_FILE
                    ) -> PlannerSettings:
-    """``settings`` for a scene without a ladder: the ``climb.scene_planner_overrides`` of
+    """``settings`` for a walked scenario (:func:`walked`): the ``climb.scene_planner_overrides`` of
     ``overrides_file`` applied on top (config/climb.yaml: a scene plans with the planner's own
     torque shares, not the ladder's headroom; "" for none)."""
     return apply_overrides(settings, read_climb_overrides(overrides_file, "scene_planner_overrides"),
