@@ -175,13 +175,18 @@ def test_a_failed_plan_is_the_failure_reason():
                                               "descend": True}, "strategy"),
                                             ({"ladder": "step_up"}, "strategy"),
                                             ({"ladder": "step_up", "strategy": "search",
-                                              "start_posture": "ladder_4_contacts"}, "start_posture")])
+                                              "start_posture": "ladder_4_contacts"}, "start_posture"),
+                                            ({"ladder": "stairs", "rungs": 3}, "rungs"),
+                                            ({"ladder": "stairs", "rungs": 9, "strategy": "search"}, "rungs")])
 def test_check_request_refuses_with_the_field(changes, field):
     with pytest.raises(SpecError) as err:
         check_request(ClimbRequest(**changes))
     assert err.value.field == field
     check_request(ClimbRequest(rungs=4))  # the default ladder gives G1 rung 4 (hands on rung 8)
     check_request(ClimbRequest(ladder="step_up", strategy="search"))  # a scene: through the graph too
+    # the search chooses its holds (on the stairs, the rails): the primitives' hands-on-a-rung bound
+    # does not apply, the ladder's rungs do
+    check_request(ClimbRequest(ladder="stairs", rungs=3, strategy="search"))
 
 
 class SceneJudge(Judge):

@@ -153,6 +153,11 @@ def check_request(req: ClimbRequest) -> Any:
             raise SpecError("start_posture", "a scene starts standing at its start pose, got "
                                              f"{req.start_posture!r}")
         return scenario
+    if req.strategy == "search":  # the search chooses the holds (rails, rungs): only the rungs bound the climb
+        n = int(scenario.ladder.n_rungs)
+        if req.rungs > n:
+            raise SpecError("rungs", f"must be <= the ladder's {n} rungs (the feet end on rung `rungs`), got {req.rungs}")
+        return scenario
     from planner_node.settings import load_settings
 
     p = load_settings().planning
