@@ -784,9 +784,7 @@ def tread_goal_position(robot: Any, env: Any, k: int) -> np.ndarray:
     stance, q = fixtures.get("standing", robot, env)
     feet = np.mean([h.centre for h in stance.holds], axis=0)
     tread = env.rung(k)
-    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * tread.half_extents
-    top = tread.position[2] + float(np.max(corners @ tread.rotation.T[:, 2]))
-    return np.array([tread.position[0], tread.position[1], top]) + (q[:3] - feet)
+    return np.array([tread.position[0], tread.position[1], tread.top_z]) + (q[:3] - feet)
 
 
 def ladder_goals(robot: Any, env: Any, rungs: int, tolerance: float,
