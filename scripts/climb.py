@@ -6,8 +6,10 @@
                      [--graph processes|composed|inprocess] [--seed 0] [--no-bag] [--timeout 1200]
 
 --scenario (alias --ladder): a name in config/ladders/ or config/scenes/, or a scenario file
-(shared/specs/ladder_spec.md, scene_spec.md). A scene without a ladder needs the planner's
-strategy `search` (config/planner.yaml); with another strategy it exits with code 2 and says so.
+(shared/specs/ladder_spec.md, scene_spec.md). Without --strategy the strategy is chosen for the
+scenario (a scene or a walked ladder such as stairs: search; a steeper ladder: the primitives) and
+the summary says why (`strategy_reason`); a scene without a ladder with --strategy primitives exits
+with code 2 and says so.
 --graph processes (default): every node of config/graph.yaml in its own process (sim_bridge,
 controller, guide_path, contact_search, primitive_adaptation, climb_coordinator, recorder);
 composed: the bridge and the controller in one `sim_graph` process, the rest separate; inprocess:
@@ -62,9 +64,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--command-delay", type=int, default=0, choices=(0, 1),
                     help="1: every command acts one control period late (a robot's actuation latency; "
                          "the controller then computes each command for the state one period ahead)")
-    ap.add_argument("--strategy", default="primitives", choices=("primitives", "search"),
+    ap.add_argument("--strategy", default="", choices=("", "primitives", "search"),
                     help="planning: primitives (the ladder paper; ladders) | search (free-flyer guide path + "
-                         "best-first contact search; ladders and scenes)")
+                         "best-first contact search; ladders and scenes); default: chosen for the scenario "
+                         "(scenes and walked ladders such as stairs: search; the summary's strategy_reason)")
     ap.add_argument("--start-posture", default="", choices=("", "standing", "ladder_4_contacts"),
                     help="stance the robot starts in (default: the primitive library's start; standing for search)")
     ap.add_argument("--timeout", type=float, default=1200.0, help="[s] wall time for the whole graph run")
@@ -83,12 +86,12 @@ def _request(args):
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from climb_core.errors import ClimbError, SpecError
-    from climb_coordinator.session import base_summary, check_request
+    from climb_coordinator.session import base_summary, check_request, with_chosen_strategy
 
-    req = _request(args)
+    req = with_chosen_strategy(_request(args))
     summary = base_summary(req)
     try:
-        check_scene(args.scenario, summary, args.strategy)
+        check_scene(args.scenario, summary, req.strategy)
         check_request(req) if args.graph != "inprocess" else None
     except SpecError as exc:
         print(f"error: {exc}", file=sys.stderr)

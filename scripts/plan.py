@@ -37,7 +37,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int, default=None, help="random seed (default: config)")
     ap.add_argument("--strategy", default=None,
                     help="search: the DARPA-tasks paper's free-flyer guide path + best-first contact search "
-                         "(ladders and scenes); otherwise a primitive library (default: config, e.g. forward)")
+                         "(ladders and scenes); otherwise a primitive library (e.g. forward); default: chosen for the "
+                         "scenario (scenes and walked ladders such as stairs: search; else config's library), "
+                         "the reason in the summary's strategy_reason")
     ap.add_argument("--start", default=None, help="start stance fixture (default: the library's, standing)")
     ap.add_argument("--out", default=None, help="write the whole-body plan (JSON) to this file")
     ap.add_argument("--verify", action="store_true", help="re-check the plan at 4x the discretisation")
@@ -148,6 +150,12 @@ def parse_overrides(items: list[str]) -> dict:
     return out
 
 
+def _reason(args: argparse.Namespace) -> dict:
+    """The summary's ``strategy_reason`` when the strategy was chosen for the scenario."""
+    reason = getattr(args, "strategy_reason", "")
+    return {"strategy_reason": reason} if reason else {}
+
+
 def run(args: argparse.Namespace):
     import dataclasses
 
@@ -159,9 +167,13 @@ def run(args: argparse.Namespace):
     from planner_node import plan_io
     from planner_node.climb_planner import plan_climb
     from planner_node.primitives import load_library
-    from planner_node.settings import apply_overrides, load_settings
+    from planner_node.settings import apply_overrides, choose_strategy, load_settings
 
     settings = apply_overrides(load_settings(), parse_overrides(args.set), where="--set")
+    if not args.strategy:  # chosen for the scenario (a scene, stairs: search), the reason in the summary
+        chosen, args.strategy_reason = choose_strategy(load_scenario(args.scenario), settings)
+        args.strategy = "search" if chosen == "search" else settings.planning.strategy
+        print(f"strategy {args.strategy}: {args.strategy_reason}", file=sys.stderr)
     if args.strategy == "search":
         return run_search(args, settings)
     if args.strategy:
@@ -182,7 +194,7 @@ def run(args: argparse.Namespace):
         from planner_node.descend import up_and_down as planner
     result = planner(robot, env, args.steps, library=library, settings=settings, start=start,
                      seed=args.seed, timeout_s=args.timeout)
-    extra: dict = {"strategy": settings.planning.strategy}
+    extra: dict = {"strategy": settings.planning.strategy, **_reason(args)}
     if args.descend and result.success:
         extra["descent_start_transition"] = int(result.stats["descent_start"])
     if scenario.scene is not None:
@@ -229,7 +241,7 @@ def run_search(args: argparse.Namespace, settings):
     problem = pipeline.Problem(request, robot, scenario, env, None, settings, start=start)
     guide = pipeline.guide_path(problem, strategy="search")
     contacts, result, _ = pipeline.search_and_adapt(problem, guide.product)
-    extra: dict = {"strategy": "search", "guide_path": guide.summary,
+    extra: dict = {"strategy": "search", **_reason(args), "guide_path": guide.summary,
                    "contact_search": {k: v for k, v in contacts.summary.items() if k != "moves"},
                    "moves": contacts.summary["moves"]}
     if scenario.scene is not None:

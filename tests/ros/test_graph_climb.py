@@ -485,12 +485,12 @@ class TestCancelMidClimb:
             with c.lock:
                 after = [m for t, m in c.contacts if t > t_cancel + 1.0]
                 fsm_after = {s[2] for s in c.states if s[0] > t_cancel + 1.0}
-            # the same graph takes the next climb, a scene (step_up: no ladder, strategy search):
-            # the simulator is reset to the scene (its time restarts at 0), the reconfigured
-            # controller ticks on the new world's states and executes to the scene's goal
+            # the same graph takes the next climb, a scene (step_up: no ladder, no strategy named:
+            # the coordinator chooses the search): the simulator is reset to the scene (its time
+            # restarts at 0), the reconfigured controller ticks on the new world's states and
+            # executes to the scene's goal
             t1 = time.monotonic()
-            second = c.send_goal(rungs=1, controller_mode="qp", scenario="step_up", strategy="search",
-                                 command_delay_ticks=1)
+            second = c.send_goal(rungs=1, controller_mode="qp", scenario="step_up", command_delay_ticks=1)
             second_result = c.result(second)
             with c.lock:
                 second_states = [s for s in c.states if s[0] >= t1]
@@ -530,7 +530,7 @@ class TestCancelMidClimb:
 
     def test_a_scene_is_climbed_through_the_graph_to_its_goal(self, run):
         """The next climb is a scene without a ladder (config/scenes/step_up.yaml, a 0.10 m step),
-        through the action with strategy search: guide_path, contact_search and
+        through the action naming no strategy (the coordinator chooses the search and says why): guide_path, contact_search and
         primitive_adaptation plan it (the search's generic contact-body paths), the controller
         executes it against the bridge, and the coordinator judges the scene's goal from
         sim/base_truth (scene_spec.md, Results). Cross-checked on sim/contacts as the test
@@ -543,6 +543,7 @@ class TestCancelMidClimb:
         s = json.loads(r.summary_json)
         assert r.success and not r.cancelled and not r.fell, r.failure_reason
         assert s["scene"] == "step_up" and s["goal_reached"] is True, s
+        assert s["strategy"] == "search" and s["strategy_reason"].startswith("a scene without a ladder"), s
         assert s["goal_distance_m"] <= 0.15 and s["settle_base_speed_max_m_s"] < 0.05
         assert s["contacts_used"] == ["ground", "step"]
         assert set(s["plan_stages_s"]) == {"guide_path", "contact_search", "primitive_adaptation"}

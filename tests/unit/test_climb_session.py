@@ -173,10 +173,11 @@ def test_a_failed_plan_is_the_failure_reason():
                                             ({"start_posture": "ladder_4_contacts"}, "start_posture"),
                                             ({"start_posture": "ladder_4_contacts", "strategy": "search",
                                               "descend": True}, "strategy"),
-                                            ({"ladder": "step_up"}, "strategy"),
+                                            ({"ladder": "step_up", "strategy": "primitives"}, "strategy"),
                                             ({"ladder": "step_up", "strategy": "search",
                                               "start_posture": "ladder_4_contacts"}, "start_posture"),
-                                            ({"ladder": "stairs", "rungs": 3}, "rungs"),
+                                            ({"ladder": "stairs", "rungs": 3, "strategy": "primitives"}, "rungs"),
+                                            ({"strategy": "forward"}, "strategy"),
                                             ({"ladder": "stairs", "rungs": 9, "strategy": "search"}, "rungs")])
 def test_check_request_refuses_with_the_field(changes, field):
     with pytest.raises(SpecError) as err:
@@ -187,6 +188,26 @@ def test_check_request_refuses_with_the_field(changes, field):
     # the search chooses its holds (on the stairs, the rails): the primitives' hands-on-a-rung bound
     # does not apply, the ladder's rungs do
     check_request(ClimbRequest(ladder="stairs", rungs=3, strategy="search"))
+    check_request(ClimbRequest(ladder="stairs", rungs=3))  # chosen: search
+    check_request(ClimbRequest(ladder="step_up"))
+
+
+@pytest.mark.parametrize("ladder, strategy, reason", [
+    ("default", "primitives", "regular ladder at 75 deg (> guide_path.walk_max_incline_deg 50)"),
+    ("stairs", "search", "stairs ladder at 35 deg (<= guide_path.walk_max_incline_deg 50): walked up"),
+    ("step_up", "search", "a scene without a ladder"),
+    ("vertical", "primitives", "vertical ladder at 90 deg")])
+def test_a_request_naming_no_strategy_gets_the_scenarios_with_the_reason(ladder, strategy, reason):
+    from climb_coordinator.session import base_summary, with_chosen_strategy
+
+    req = with_chosen_strategy(ClimbRequest(ladder=ladder))
+    assert req.strategy == strategy and reason in req.strategy_reason, req.strategy_reason
+    summary = base_summary(req)
+    assert summary["strategy"] == strategy and summary["strategy_reason"] == req.strategy_reason
+    # a named strategy is kept as it is (no reason); a spec that does not load keeps the primitives'
+    # checks, which then name its broken field
+    assert with_chosen_strategy(ClimbRequest(ladder=ladder, strategy="search")).strategy_reason == ""
+    assert with_chosen_strategy(ClimbRequest(ladder="no_such_ladder")).strategy == "primitives"
 
 
 class SceneJudge(Judge):

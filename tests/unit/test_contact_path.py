@@ -247,3 +247,45 @@ def test_a_hand_freed_for_good_folds_to_the_reference_posture_first_then_alterna
     off = SimpleNamespace(robot=g1, settings=SimpleNamespace(
         contact_path=settings_mod.ContactPathParams(free_rest=False)))
     assert np.array_equal(contact_path.freed_posture(off, "right_hand", q_lift, 0, rng), q_lift)
+
+
+def test_a_foot_goes_up_a_ship_ladders_overhanging_treads_behind_their_noses(g1):
+    """The ship ladder's treads (17 cm deep, 12.5 cm run) overhang the one below by 4.5 cm: a foot
+    on tread 1 rising straight up meets tread 2's nose with its toes. The cues lift the released
+    foot off tread 1, back it off until the sole's front is ``step_edge_clearance`` behind tread 2's
+    near edge, rise straight up and come onto tread 2 from above."""
+    from climb_core import fixtures, holds
+    from climb_core.environment import build_environment
+
+    ship = build_environment("ship")
+    settings = load_settings()
+    p = settings.contact_path
+    ctx = AdaptContext(g1, ship, contact_path.empty_library(g1), settings)
+    _, q = fixtures.get("standing", g1, ship)
+
+    def on(k):  # the standing robot moved so that its right sole is centred on tread k
+        out = q.copy()
+        sole = np.asarray(g1.T_world_surface("right_foot", q))[:3, 3]
+        tread = ship.rung(k)
+        out[:3] += np.array([tread.position[0], sole[1], tread.top_z]) - sole
+        return out
+
+    q_s, q_e = on(1), on(2)
+    old = holds.hold_from_configuration(g1, ship, q_s, "right_foot", "rung_1")
+    new = holds.hold_from_configuration(g1, ship, q_e, "right_foot", "rung_2")
+    cues, fractions = contact_path.limb_cues(ctx, "right_foot", old, new, q_s, q_e)
+    points = np.array([c[:3, 3] for c in cues])
+    p_s = np.asarray(g1.T_world_surface("right_foot", q_s))[:3, 3]
+    p_e = np.asarray(g1.T_world_surface("right_foot", q_e))[:3, 3]
+    assert np.allclose(points[0], p_s + [0.0, 0.0, p.lift_clearance], atol=1e-6)  # lifted first
+    assert np.allclose(points[-1], p_e + [0.0, 0.0, p.approach_distance], atol=1e-6)  # onto it from above
+    assert np.all(np.diff(fractions) > 0.0)
+    # the sole's front (toe, +x) behind tread 2's near edge wherever the sole is at the tread's
+    # height (between its bottom and its top), along the polyline of the cues
+    toe = float(np.max(holds.sole_vertices_in_surface(holds.limb_surface(g1, "right_foot"))[:, 0]))
+    tread2 = ship.rung(2)
+    nose = tread2.position[0] - tread2.half_extents[1]
+    line = np.concatenate([[p_s], points])
+    along = np.array([a + s * (b - a) for a, b in zip(line[:-1], line[1:]) for s in np.linspace(0.0, 1.0, 50)])
+    level = along[(along[:, 2] > tread2.top_z - 2.0 * tread2.half_extents[2]) & (along[:, 2] < tread2.top_z)]
+    assert len(level) and level[:, 0].max() + toe <= nose - p.step_edge_clearance + 1e-6, (points, nose)

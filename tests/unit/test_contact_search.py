@@ -282,3 +282,33 @@ def test_a_detour_back_to_an_earlier_contact_set_is_cut_from_the_sequence():
     # a later return to the start drops everything since, the start's configuration stays
     back = cs.without_detours(nodes[:2] + [cs.Node(stances[0], np.full(3, 9.0), nodes[1], "back")])
     assert len(back) == 1 and back[0] is nodes[0]
+
+
+def test_a_walked_ladder_is_stepped_up_one_tread_at_a_time(g1):
+    """On a walked ladder (the ship ladder, walked) a free foot is offered the treads up to one
+    above the other foot's (the ground is tread 0, the platform n + 1): from the ground it cannot
+    go straight to tread 2 (43 cm up for G1; executed, the robot fell rocking on that leg). A
+    climbed ladder keeps every tread."""
+    from climb_core import holds
+    from climb_core.contact import Stance
+    from climb_core.environment import build_environment
+
+    ship = build_environment("ship")
+    levels = cs.tread_levels(ship)
+    assert levels["ground"] == 0 and levels["rung_1"] == 1 and levels["rung_5"] == 5 and levels["platform"] == 6
+    _, q = fixtures.get("standing", g1, ship)
+    left = holds.hold_from_configuration(g1, ship, q, "left_foot", "ground")
+    on_ground = Stance((left,))
+    feet_surfaces = [ship.surfaces[n] for n in ("ground", "rung_1", "rung_2", "rung_3", "platform")]
+    settings = load_settings()
+    walked = cs._Search(g1, ship, settings.contact_search, settings.pcik, None, walked=True)
+    assert [sf.name for sf in walked._within_a_step(on_ground, "right_foot", feet_surfaces)] == ["ground", "rung_1"]
+    assert walked.stats.pruned_by_step == 3
+    # a hand, or a foot while the other foot holds nothing, is not bounded
+    assert len(walked._within_a_step(on_ground, "right_hand", feet_surfaces)) == 5
+    assert len(walked._within_a_step(Stance(()), "right_foot", feet_surfaces)) == 5
+    climbed = cs._Search(g1, ship, settings.contact_search, settings.pcik, None, walked=False)
+    assert len(climbed._within_a_step(on_ground, "right_foot", feet_surfaces)) == 5
+    unbounded = dataclasses.replace(settings.contact_search, foot_max_treads_up=0)
+    assert len(cs._Search(g1, ship, unbounded, settings.pcik, None, walked=True)
+               ._within_a_step(on_ground, "right_foot", feet_surfaces)) == 5

@@ -214,3 +214,16 @@ def test_plan_script_set_refuses_a_bad_override_naming_it(item, field):
                          capture_output=True, text=True, timeout=120, cwd=root)
     assert run.returncode == 2, (run.stdout, run.stderr)
     assert f"error: {field}" in run.stderr and "Traceback" not in run.stderr, run.stderr
+
+
+def test_plan_script_chooses_the_search_for_a_scene_named_without_a_strategy():
+    """scripts/plan.py --scenario step_up (no --strategy): the strategy is chosen for the scenario
+    (a scene: the contact search), said on standard error and in the summary, and the scene plans."""
+    root = pathlib.Path(__file__).resolve().parents[2]
+    run = subprocess.run([sys.executable, str(root / "scripts" / "plan.py"), "--scenario", "step_up"],
+                         capture_output=True, text=True, timeout=300, cwd=root)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "strategy search: a scene without a ladder" in run.stderr
+    summary = json.loads(run.stdout.strip().splitlines()[-1])
+    assert summary["strategy"] == "search" and summary["strategy_reason"].startswith("a scene without a ladder")
+    assert summary["success"] and summary["goal_reached"], summary

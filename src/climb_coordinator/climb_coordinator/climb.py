@@ -43,7 +43,8 @@ from climb_core.errors import SpecError
 from . import judge
 from .record import BagWriter, ClimbLog, sample
 from .session import (MODES, STOP_STATES, ClimbRequest, ClimbSession, ExecStatus, PlanOutcome, base_summary,
-                      check_request, controller_overrides, plan_duration, scene_goal, validate)
+                      check_request, controller_overrides, plan_duration, scene_goal, validate,
+                      with_chosen_strategy)
 from .settings import ClimbSettings, apply_planner_overrides, load_climb_settings
 
 __all__ = ["MODES", "ClimbRequest", "ClimbResult", "base_summary", "validate", "check_request", "plan_duration",
@@ -406,6 +407,7 @@ def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
     from planner_node.primitives import load_library
     from planner_node.settings import load_settings, walked
 
+    req = with_chosen_strategy(req)
     validate(req)
     cs = settings or load_climb_settings()
     scenario = load_scenario(req.ladder)

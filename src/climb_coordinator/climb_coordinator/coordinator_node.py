@@ -47,7 +47,7 @@ from climb_core.errors import ClimbError, SpecError
 from climb_core.params import param
 
 from .session import (MAX_FORCED_REPLANS, ClimbRequest, ClimbSession, ExecStatus, PlanOutcome, stance_feet_rung,
-                      check_request, controller_overrides, ladder_name, scene_goal)
+                      check_request, controller_overrides, ladder_name, scene_goal, with_chosen_strategy)
 
 NODE_NAME = "climb_coordinator"
 #: [s] wait for guide_path's subscription to plan/request before a request is published
@@ -168,7 +168,7 @@ def request_from_msg(msg: Any, default_robot: str, max_forced_replans: int = MAX
                         mode=msg.controller_mode or "qp", seed=int(msg.seed), bag=False,
                         plan_timeout_s=float(msg.planning_timeout_s) or None, descend=bool(msg.descend),
                         plan_cycles=int(msg.plan_cycles) or None, command_delay_ticks=int(msg.command_delay_ticks),
-                        max_forced_replans=max_forced_replans, strategy=getattr(msg, "strategy", "") or "primitives",
+                        max_forced_replans=max_forced_replans, strategy=getattr(msg, "strategy", ""),
                         start_posture=getattr(msg, "start_posture", ""))
 
 
@@ -519,9 +519,12 @@ def _make_node():
                 running = self.run.id if self.run is not None else "?"
                 return False, "", f"busy: climb {running} is running (cancel it with climb/cancel)"
             try:
+                req = with_chosen_strategy(req)
                 self.check(req)
             except ClimbError as exc:
                 return False, "", str(exc)
+            if req.strategy_reason:
+                self.get_logger().info(f"strategy {req.strategy}: {req.strategy_reason}")
             climb_id = time.strftime("climb-%H%M%S-") + uuid.uuid4().hex[:6]
             run = ClimbRun(climb_id, req)
             with self._lock:

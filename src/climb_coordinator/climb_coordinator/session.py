@@ -70,7 +70,9 @@ class ClimbRequest:
     max_forced_replans: int = MAX_FORCED_REPLANS
     #: primitives (the ladder paper: the library's primitive sequence adapted) | search (the
     #: DARPA-tasks paper: free-flyer guide path, best-first contact search, then the adaptation)
-    strategy: str = "primitives"
+    #: | "" (chosen for the scenario: :func:`with_chosen_strategy`)
+    strategy: str = ""
+    strategy_reason: str = ""  # why the strategy was chosen (set by with_chosen_strategy)
     #: the stance fixture the robot starts in (climb_core.fixtures: standing, ladder_4_contacts, ...);
     #: "" = the primitive library's start fixture (strategy primitives) or standing (search)
     start_posture: str = ""
@@ -83,9 +85,30 @@ def ladder_name(ladder: Any) -> str:
 
 
 def base_summary(req: ClimbRequest) -> dict:
-    return {"success": False, "failure_reason": "", "robot": req.robot, "ladder": ladder_name(req.ladder),
-            "rungs_requested": int(req.rungs), "rungs_reached": 0, "plan_time_s": 0.0, "n_stances": 0,
-            "sim_time_s": 0.0, "fell": False, "control_tick_ms": None, "bag": "", "mode": req.mode}
+    out = {"success": False, "failure_reason": "", "robot": req.robot, "ladder": ladder_name(req.ladder),
+           "rungs_requested": int(req.rungs), "rungs_reached": 0, "plan_time_s": 0.0, "n_stances": 0,
+           "sim_time_s": 0.0, "fell": False, "control_tick_ms": None, "bag": "", "mode": req.mode}
+    if req.strategy_reason:
+        out.update(strategy=req.strategy, strategy_reason=req.strategy_reason)
+    return out
+
+
+def with_chosen_strategy(req: ClimbRequest) -> ClimbRequest:
+    """``req`` with its strategy chosen (:func:`planner_node.settings.choose_strategy`) when it names none, the reason in
+    ``strategy_reason`` (the summary's); a scenario that does not load keeps ``primitives`` (the
+    request checks then name the spec's broken field)."""
+    import dataclasses
+
+    from climb_core.ladder import load_scenario
+    from planner_node.settings import choose_strategy
+
+    if req.strategy:
+        return req
+    try:
+        strategy, reason = choose_strategy(load_scenario(req.ladder))
+    except SpecError:
+        return dataclasses.replace(req, strategy="primitives")
+    return dataclasses.replace(req, strategy=strategy, strategy_reason=reason)
 
 
 def validate(req: ClimbRequest) -> None:
@@ -105,8 +128,9 @@ def validate(req: ClimbRequest) -> None:
             raise SpecError("plan_cycles", "replanning during a climb and back down is not supported: use one")
     if isinstance(req.command_delay_ticks, bool) or req.command_delay_ticks not in (0, 1):
         raise SpecError("command_delay_ticks", f"must be 0 or 1, got {req.command_delay_ticks!r}")
-    if req.strategy not in STRATEGIES:
-        raise SpecError("strategy", f"must be one of {', '.join(STRATEGIES)}, got {req.strategy!r}")
+    if req.strategy and req.strategy not in STRATEGIES:
+        raise SpecError("strategy", f"must be empty (chosen for the scenario) or one of {', '.join(STRATEGIES)}, "
+                                    f"got {req.strategy!r}")
     if req.start_posture and req.start_posture not in START_POSTURES:
         raise SpecError("start_posture", f"must be empty or one of {', '.join(START_POSTURES)}, "
                                          f"got {req.start_posture!r}")
@@ -135,11 +159,13 @@ def check_request(req: ClimbRequest) -> Any:
     """Everything a climb request can be refused for, checked at once (no model loaded):
     the request's fields, an unknown robot, an invalid scenario spec (field and rule), a target
     rung the ladder cannot give that robot (its hands hold a rung ``hands_above_feet_height``
-    above the feet). Returns the Scenario; SpecError(field, rule) on a refusal."""
+    above the feet); a request naming no strategy is checked with the one chosen for it
+    (:func:`with_chosen_strategy`). Returns the Scenario; SpecError(field, rule) on a refusal."""
     from climb_core.environment import build_environment
     from climb_core.ladder import load_scenario
     from climb_core.robot import available_robots
 
+    req = with_chosen_strategy(req)
     validate(req)
     known = available_robots()
     if req.robot not in known:

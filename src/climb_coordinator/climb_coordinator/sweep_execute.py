@@ -53,7 +53,7 @@ def execute_plan(task: SweepTask, planned, cs) -> dict:
     p = planned.settings.planning
     library = load_library(planned.robot.config.name, p.strategy, p.primitives_dir, nq=planned.robot.model.nq)
     req = ClimbRequest(ladder=scenario, robot=task.robot, rungs=task.steps, mode="qp", bag=False, seed=task.seed,
-                       plan_timeout_s=task.timeout_s, command_delay_ticks=COMMAND_DELAY_TICKS)
+                       plan_timeout_s=task.timeout_s, command_delay_ticks=COMMAND_DELAY_TICKS, strategy="primitives")
     validate(req)
     replans = LibraryPlanSource(req, planned.robot, planned.env, library, planned.settings, cs)
     source = GivenPlanSource(planned.result.plan, planned.robot, cs, replans)

@@ -99,31 +99,52 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
     back[2] = 0.0
     target = ctx.env.surfaces.get(new.env_surface)
     rung = target is not None and (target.shape == "cylinder" or holds_mod.is_bar(target))  # round or rect
-    if rung:
-        back = back - float(back @ target.axis) * target.axis
+    if target is not None and target.role in ("rung", "tread", "platform"):
+        # along the ladder only: the sideways part of the move is made in the carry, above the target
+        lateral = np.asarray(ctx.env.T_world_ladder, dtype=float)[:3, 1]
+        back = back - float(back @ lateral) * lateral
     nb = float(np.linalg.norm(back))
     b = back / nb if nb > 1e-6 else np.zeros(3)
     front = approach + p.carry_backoff * b
     start = lift if lift is not None else p_s
     points = [lift] if lift is not None else []
-    behind = float((front - start) @ b)
-    if behind > 1e-3:  # back off to the front point's distance first, at the lift-off height
-        start = start + behind * b
+
+    def back_off(distance: float) -> None:
+        # horizontally, at the lift-off height: a foot released before this step (no old hold,
+        # resting where it stood) is lifted straight up first instead of dragged
+        nonlocal start, lift
+        if lift is None and limb in FEET:
+            lift = start = p_s + np.array([0.0, 0.0, p.lift_clearance])
+            points.append(lift)
+        start = start + distance * b
         points.append(start)
+
+    behind = float((front - start) @ b)
+    if behind > 1e-3:  # back off to the front point's distance first
+        back_off(behind)
     rise = float(front[2] - start[2])
     flat_foot = target is not None and not rung and limb in FEET
+    past_front = False
     if flat_foot and rise > p.lift_clearance:
         # onto a higher flat surface (a step, a tread): straight up to the front point's height
-        # first, so that the toes clear the edge before the foot moves over it
+        # first, so that the toes clear the edge before the foot moves over it; where the sole
+        # is under the surface's edge (a tread overhanging the one below), back off first
+        short = step_rise_distance(robot, limb, target, T_e, b) + p.step_edge_clearance - float((start - p_e) @ b)
+        if short > 1e-3:
+            back_off(short)
+            rise = float(front[2] - start[2])
         start = start + np.array([0.0, 0.0, rise])
         points.append(start)
+        past_front = float((front - approach) @ b) > float((start - approach) @ b) + 1e-3
     elif flat_foot and float(approach[2] - start[2]) < -p.lift_clearance:
         # down onto a lower flat surface (off a step): over the approach point at the lift-off
         # height, then straight down onto it (a carry backed off toward the step would cut
         # through its edge)
         front = np.array([approach[0], approach[1], start[2]])
     k = p.carry_waypoints
-    points += [start + (i / k) * (front - start) for i in range(1, k + 1)] + [approach]
+    if not past_front:  # (a foot that rose along a ladder's treads may be nearer than the front point)
+        points += [start + (i / k) * (front - start) for i in range(1, k + 1)]
+    points.append(approach)
     poses = []
     d_rot = pin.log3(T_s[:3, :3].T @ T_e[:3, :3])
     poly = [p_s] + points + [p_e]
@@ -141,6 +162,20 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
         T[:3, :3], T[:3, 3] = R, point
         poses.append(T)
     return poses, s
+
+
+def step_rise_distance(robot, limb: str, target, T_e: np.ndarray, b: np.ndarray) -> float:
+    """[m] the least horizontal distance along ``b`` (unit, horizontal: toward where the foot comes
+    from) between the foot's end place ``T_e`` and where it may rise beside box ``target``: the
+    box's reach toward ``b`` from the end place plus the sole's front (the sole corners' farthest
+    reach against ``b``, in the end orientation); -inf for a surface other than a box."""
+    if getattr(target, "shape", "") != "box":
+        return -np.inf
+    p_e = T_e[:3, 3]
+    T = np.asarray(target.T_world_surface)
+    edge = float((T[:3, 3] - p_e) @ b) + float(np.abs(T[:3, :3].T @ b) @ np.asarray(target.half_extents))
+    sole = holds_mod.sole_vertices_in_surface(holds_mod.limb_surface(robot, limb)) @ T_e[:3, :3].T
+    return edge + float(np.max(-(sole @ b)))
 
 
 def lift_height(ctx: A.AdaptContext, path: Sequence[np.ndarray], limb: str, old: Hold, q_s: np.ndarray) -> float:

@@ -121,6 +121,15 @@ def limb_reach(robot: Any, limb: str) -> _LimbReach:
     return _LimbReach(ids[0], length)
 
 
+def tread_levels(env: Any) -> dict[str, int]:
+    """Surface name -> its level on the ladder: the ground 0, rung / tread k k, the platform n + 1."""
+    n = int(env.n_rungs)
+    levels = {"ground": 0, **{f"rung_{k}": k for k in range(1, n + 1)}}
+    if "platform" in env.surfaces:
+        levels["platform"] = n + 1
+    return levels
+
+
 def surface_distance(surface: Any, point: np.ndarray) -> float:
     """[m] distance from ``point`` to the surface's solid (0 inside)."""
     T = np.asarray(surface.T_world_surface)
@@ -217,6 +226,7 @@ class SearchStats:
     ik_time_s: float = 0.0
     pruned_by_reach: int = 0
     pruned_by_rank: int = 0
+    pruned_by_step: int = 0
     skipped_visited: int = 0
     skipped_banned: int = 0
     time_s: float = 0.0
@@ -232,6 +242,7 @@ class SearchStats:
                 "ik_calls": self.ik_calls, "ik_failures": self.ik_failures,
                 "ik_calls_per_s": round(self.ik_calls_per_s, 2), "ik_time_s": round(self.ik_time_s, 3),
                 "pruned_by_reach": self.pruned_by_reach, "pruned_by_rank": self.pruned_by_rank,
+                "pruned_by_step": self.pruned_by_step,
                 "skipped_visited": self.skipped_visited, "skipped_banned": self.skipped_banned,
                 "milestones_reached": self.milestones_reached, "milestones_skipped": list(self.milestones_skipped),
                 "time_s": round(self.time_s, 3)}
@@ -262,7 +273,8 @@ def stance_key(stance: Stance, resolution: float) -> frozenset:
 
 class _Search:
     def __init__(self, robot: Any, env: Any, params: ContactSearchParams, pcik_params: PCIKParams | None,
-                 feasibility_cfg: feasibility.FeasibilityConfig | None, banned: Collection[tuple] = ()):
+                 feasibility_cfg: feasibility.FeasibilityConfig | None, banned: Collection[tuple] = (),
+                 walked: bool = False):
         self.robot, self.env, self.params = robot, env, params
         self.banned = frozenset(banned)
         if params.ik_floating_weight > 0.0:  # the added contact lands at its milestone place
@@ -276,9 +288,9 @@ class _Search:
         # a ladder is climbed on three supports; elsewhere the robot also walks (single support)
         on_ladder = getattr(env, "ladder", None) is not None
         self.min_contacts = params.min_contacts if on_ladder else params.min_contacts_scene
-        ladder = getattr(env, "ladder", None)
-        self.com_over_feet = (on_ladder and params.com_over_feet_weight > 0.0
-                              and float(ladder.inclination_deg) <= params.com_over_feet_max_incline_deg)
+        walked_ladder = on_ladder and walked  # stairs, a ship ladder: walked up, the CoM over the feet
+        self.com_over_feet = walked_ladder and params.com_over_feet_weight > 0.0
+        self.tread_of = tread_levels(env) if walked_ladder and params.foot_max_treads_up > 0 else {}
         if self.com_over_feet:
             self.pcik_com = dataclasses.replace(self.pcik_params, com_weight=params.com_over_feet_weight)
         self.stats = SearchStats()
@@ -373,6 +385,7 @@ class _Search:
                     self.stats.pruned_by_reach += 1
                 else:
                     candidates.append(sf)
+            candidates = self._within_a_step(stance, limb, candidates)
             # closest to the limb's milestone place first, at most max_surfaces_per_limb of them
             candidates.sort(key=lambda sf: surface_distance(sf, preferred))  # stable: ties in env order
             cap = self.params.max_surfaces_per_limb
@@ -412,6 +425,21 @@ class _Search:
                 child = Stance(child.holds, name=f"remove:{h.limb}@{h.env_surface}")
                 out.append((Node(child, res.q, node, f"remove:{h.limb}@{h.env_surface}", node.depth + 1), None))
         return out
+
+    def _within_a_step(self, stance: Stance, limb: str, candidates: list[Any]) -> list[Any]:
+        """On a walked ladder, a foot's surfaces at most ``foot_max_treads_up`` treads above the
+        other foot's hold (:func:`tread_levels`); every surface when the other foot holds nothing or
+        holds no tread."""
+        if not self.tread_of or limb_type(limb) != "foot":
+            return candidates
+        other = next((h for h in stance.holds if h.limb != limb and limb_type(h.limb) == "foot"), None)
+        level = None if other is None else self.tread_of.get(other.env_surface)
+        if level is None:
+            return candidates
+        bound = level + self.params.foot_max_treads_up
+        kept = [sf for sf in candidates if self.tread_of.get(sf.name, -1) <= bound]
+        self.stats.pruned_by_step += len(candidates) - len(kept)
+        return kept
 
     def _banned(self, stance: Stance, child: Stance) -> bool:
         if not self.banned:
@@ -528,7 +556,7 @@ class _Search:
 def search(robot: Any, env: Any, q_start: np.ndarray, stance_start: Stance, path: GuidePath,
            params: ContactSearchParams | None = None, *, pcik_params: PCIKParams | None = None,
            feasibility_cfg: feasibility.FeasibilityConfig | None = None,
-           banned: Collection[tuple] = ()) -> SearchResult:
+           banned: Collection[tuple] = (), walked: bool | None = None) -> SearchResult:
     """The stance sequence from (``q_start``, ``stance_start``) through the milestones of ``path``.
 
     The first milestone is skipped when the start is already within tolerance of it (a guide path
@@ -538,12 +566,17 @@ def search(robot: Any, env: Any, q_start: np.ndarray, stance_start: Stance, path
     node_budget, exhausted) when a milestone is not reached; SpecError for a guide path of another
     robot or an empty one. ``banned``: transitions not to make, pairs of :func:`stance_key` (from,
     to) (:func:`banned_transition`: a transition whose whole-body path the adaptation could not
-    build)."""
+    build). ``walked``: the robot walks up this ladder (:func:`planner_node.settings.walked`; None:
+    judged with config/planner.yaml's ``guide_path.walk_max_incline_deg``): the search's IK keeps
+    the CoM over the held feet and a foot goes up one tread at a time."""
     from .settings import load_settings
+    from .settings import walked as walked_scenario
 
     settings = None
-    if params is None or pcik_params is None:
+    if params is None or pcik_params is None or walked is None:
         settings = load_settings()
+    if walked is None:
+        walked = walked_scenario(env, settings)
     params = params or settings.contact_search
     pcik_params = pcik_params or settings.pcik
     if path.robot != robot.config.name:
@@ -555,7 +588,7 @@ def search(robot: Any, env: Any, q_start: np.ndarray, stance_start: Stance, path
     for i, m in enumerate(path.milestones):
         if np.asarray(m).shape != (nq,) or not np.isfinite(m).all():
             raise SpecError(f"guide_path.milestones[{i}]", f"must be {nq} finite numbers")
-    s = _Search(robot, env, params, pcik_params, feasibility_cfg, banned)
+    s = _Search(robot, env, params, pcik_params, feasibility_cfg, banned, walked)
     node = Node(stance_start, np.asarray(q_start, dtype=float).copy())
     reached: list[Node] = []
     targets = [s.target(np.asarray(m, dtype=float)) for m in path.milestones]
@@ -634,4 +667,4 @@ def moves_of(plan: ContactPlan) -> list[str]:
 
 
 __all__ = ["search", "moves_of", "SearchResult", "SearchStats", "Node", "configuration_distance", "accepting_surfaces",
-           "limb_reach", "surface_distance", "stance_key", "transition_changes", "without_detours", "limb_type"]
+           "limb_reach", "surface_distance", "tread_levels", "stance_key", "transition_changes", "without_detours", "limb_type"]

@@ -493,6 +493,7 @@ def contact_search_search(problem: Problem, path: GuidePath, banned=(), time_lim
     import dataclasses
 
     from .contact_search import search
+    from .settings import walked
 
     t0 = time.perf_counter()
     q0, stance0 = search_start(problem)
@@ -501,7 +502,7 @@ def contact_search_search(problem: Problem, path: GuidePath, banned=(), time_lim
     if limit is not None:
         params = dataclasses.replace(params, time_limit_s=float(limit))
     res = search(problem.robot, problem.env, q0, stance0, path, params, pcik_params=problem.settings.pcik,
-                 banned=banned)
+                 banned=banned, walked=walked(problem.scenario, problem.settings))
     summary = {"strategy": "search", "n_stances": len(res.plan.stances), "moves": res.moves,
                **res.stats.as_dict(), "time_s": round(time.perf_counter() - t0, 3)}
     return StageResult(res.plan, summary)

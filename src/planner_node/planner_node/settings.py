@@ -182,13 +182,13 @@ class ContactSearchParams:
         "on a ladder, contacts are removed only from sets with more than this (3: the quasi-static climbing gait)"))
     min_contacts_scene: int = param(1, unit="-", min=1, description=(
         "in a scene without a ladder, the same bound (1: single support, the robot walks)"))
-    com_over_feet_max_incline_deg: float = param(50.0, unit="deg", min=0.0, max=90.0, description=(
-        "on a ladder this steep or less (stairs: 20-50 deg), the search's IK pulls the CoM over the feet "
-        "that hold (their holds' centroid, x and y): a hand may let go of a rail without the robot hanging "
-        "back on the other (steeper ladders are climbed with the CoM behind the rungs)"))
     com_over_feet_weight: float = param(3000.0, unit="1/m^2", min=0.0, description=(
-        "the search's IK: cost of the CoM's horizontal distance to the feet's centroid where "
-        "com_over_feet_max_incline_deg applies (0: off)"))
+        "on a walked ladder (stairs, ship ladders: guide_path.walk_max_incline_deg), the search's IK's cost of the "
+        "CoM's horizontal distance to the held feet's centroid: a hand may let go of a rail without the robot "
+        "hanging back on the other (steeper ladders are climbed with the CoM behind the rungs; 0: off)"))
+    foot_max_treads_up: int = param(1, unit="-", min=0, description=(
+        "on a walked ladder, a foot's new hold is at most this many treads above the other foot's (the ground is "
+        "tread 0, the platform n + 1): the robot steps one tread at a time (0: no bound)"))
     repair_rounds: int = param(4, unit="-", min=0, description=(
         "in process: a searched plan whose adaptation is stuck at a transition is searched again without "
         "that transition, up to this many times"))
@@ -265,6 +265,9 @@ class ContactPathParams:
         "keeps its lift-off posture"))
     carry_backoff: float = param(0.12, unit="m", min=0.0, description=(
         "carry way-points: held this far in front of the target (horizontally toward where the limb comes from)"))
+    step_edge_clearance: float = param(0.03, unit="m", min=0.0, description=(
+        "a foot going up onto a higher flat surface rises where its sole's front is this far behind that "
+        "surface's near edge (a ship ladder's tread overhangs the one below: the foot backs off first)"))
     carry_waypoints: int = param(2, unit="-", min=1, max=8, description=(
         "way-points between the lift-off and the approach point"))
     com_weight: float = param(10000.0, unit="1/m^2", min=0.0, description=(
@@ -367,6 +370,22 @@ def walked(scenario: Any, settings: PlannerSettings) -> bool:
     with config/climb.yaml's ``scene_planner_overrides`` on top of its ``planner_overrides``."""
     ladder = getattr(scenario, "ladder", None)
     return ladder is None or float(ladder.inclination_deg) <= settings.guide_path.walk_max_incline_deg
+
+
+def choose_strategy(scenario: Any, settings: PlannerSettings | None = None) -> tuple[str, str]:
+    """(``search`` | ``primitives``, reason) for a climb that names no strategy: a scene is searched
+    (the primitive libraries climb ladders); a ladder the robot walks up (:func:`walked`: stairs) is
+    searched too, its holds (treads, rails) chosen by the contact search; a steeper ladder is climbed
+    with the robot's primitive library (``planning.strategy``)."""
+    settings = settings or load_settings()
+    ladder = getattr(scenario, "ladder", None)
+    if ladder is None:
+        return "search", "a scene without a ladder: guide path and best-first contact search"
+    what = f"{ladder.type} ladder at {float(ladder.inclination_deg):g} deg"
+    limit = f"guide_path.walk_max_incline_deg {settings.guide_path.walk_max_incline_deg:g}"
+    if walked(scenario, settings):
+        return "search", f"{what} (<= {limit}): walked up, the contact search chooses the treads and rails"
+    return "primitives", f"{what} (> {limit}): climbed with the {settings.planning.strategy} primitive library"
 
 
 def scene_settings(settings: PlannerSettings, overrides_file: str | pathlib.Path = CLIMB_OVERRIDES_FILE
