@@ -80,9 +80,13 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
     """World poses [4x4] of the moving limb's surface at the way-points and each one's path
     fraction in (0, 1) (arc length of the cue polyline from q_s to q_e): the lift-off (a held
     limb), then - when the front point is farther back than the lift-off - straight back to its
-    distance at the lift-off height (a foot clears the rung above before rising), - a foot going
-    onto a higher flat surface (a step) - straight up to the front point's height (down onto a lower
-    one: the front point is over the approach point, at the lift-off height), the carry
+    distance at the lift-off height (a foot clears the rung above before rising; a foot released
+    before this step, resting on its surface, is lifted straight up first; on a ladder the back-off
+    is along the ladder, the sideways part of the move is made in the carry), - a foot going onto a
+    higher flat surface (a step) - straight up to the front point's height, from where its sole's
+    front is ``step_edge_clearance`` behind the surface's near edge (:func:`step_rise_distance`: a
+    ship ladder's tread overhangs the one below) (down onto a lower one: the front point is over
+    the approach point, at the lift-off height), the carry
     toward the front point (``carry_backoff`` behind the approach point, horizontally toward
     where the limb comes from), and the approach point on the new hold's normal. The orientation
     turns from the start's to the end's along the way (the lift-off keeps the start's, the
@@ -124,7 +128,6 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
         back_off(behind)
     rise = float(front[2] - start[2])
     flat_foot = target is not None and not rung and limb in FEET
-    past_front = False
     if flat_foot and rise > p.lift_clearance:
         # onto a higher flat surface (a step, a tread): straight up to the front point's height
         # first, so that the toes clear the edge before the foot moves over it; where the sole
@@ -135,16 +138,13 @@ def limb_cues(ctx: A.AdaptContext, limb: str, old: Hold | None, new: Hold, q_s: 
             rise = float(front[2] - start[2])
         start = start + np.array([0.0, 0.0, rise])
         points.append(start)
-        past_front = float((front - approach) @ b) > float((start - approach) @ b) + 1e-3
     elif flat_foot and float(approach[2] - start[2]) < -p.lift_clearance:
         # down onto a lower flat surface (off a step): over the approach point at the lift-off
         # height, then straight down onto it (a carry backed off toward the step would cut
         # through its edge)
         front = np.array([approach[0], approach[1], start[2]])
     k = p.carry_waypoints
-    if not past_front:  # (a foot that rose along a ladder's treads may be nearer than the front point)
-        points += [start + (i / k) * (front - start) for i in range(1, k + 1)]
-    points.append(approach)
+    points += [start + (i / k) * (front - start) for i in range(1, k + 1)] + [approach]
     poses = []
     d_rot = pin.log3(T_s[:3, :3].T @ T_e[:3, :3])
     poly = [p_s] + points + [p_e]
