@@ -55,10 +55,8 @@ class QpParams:
 
 @dataclass(frozen=True)
 class ContactParams:
-    friction_margin: float = param(0.95, unit="-", min=0.05, max=1.0, description=(
-        "the QP's friction cones use margin * mu; no narrower than the planner's own checks "
-        "(planning.friction_margin): with 0.8 the one-foot stances of the steep grid ladders were not "
-        "holdable at rest (78 deg / 26 cm: ratio 1.09) and their climbs fell"))
+    friction_margin: float = param(0.8, unit="-", min=0.05, max=1.0,
+                                   description="the QP's friction cones use margin * mu")
     generators_per_point: int = param(4, unit="-", min=3, description=(
         "edges of the linearised friction cone (a multiple of 4 contains the planner's pyramid and single-tangent "
         "forces up to mu f_n: constraints.friction_generators)"))
