@@ -16,6 +16,9 @@ other:
   hold carrying nothing: the robot is in equilibrium on the others); on success the set without it
   is pushed; sets keep more than ``min_contacts`` contacts on a ladder (the three-support gait),
   ``min_contacts_scene`` elsewhere (1: single support, walking);
+- on a walked ladder (stairs: the caller's ``walked``) the IK pulls the CoM over the held feet and a
+  free foot is offered the treads at most ``foot_max_treads_up`` above the other foot's
+  (:func:`tread_levels`: one tread at a time);
 - branching: the surfaces of a free limb beyond its reach from its root (hip; an arm: the waist, whose chain holds the shoulder) are
   pruned before any IK call; of the others, the ``max_surfaces_per_limb`` closest to the limb's
   place at the milestone are tried, closest first (0: all of them, the paper's exhaustive
@@ -122,11 +125,13 @@ def limb_reach(robot: Any, limb: str) -> _LimbReach:
 
 
 def tread_levels(env: Any) -> dict[str, int]:
-    """Surface name -> its level on the ladder: the ground 0, rung / tread k k, the platform n + 1."""
-    n = int(env.n_rungs)
-    levels = {"ground": 0, **{f"rung_{k}": k for k in range(1, n + 1)}}
+    """Surface name -> its level on the ladder: the ground 0, rung / tread k k
+    (:func:`planner_node.adapt.rung_index`), the platform n + 1."""
+    from .adapt import rung_index
+
+    levels = {name: rung_index(name) for name in env.surfaces if rung_index(name) >= 0}
     if "platform" in env.surfaces:
-        levels["platform"] = n + 1
+        levels["platform"] = int(env.n_rungs) + 1
     return levels
 
 
