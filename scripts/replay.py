@@ -303,7 +303,7 @@ def reexecute(args) -> int:
     import yaml
 
     from climb_coordinator.report import (compare_base, first_tick_after, load_run, plan_acceptances,
-                                          plan_start_stamps, repeated_acceptances)
+                                          plan_start_stamps, plan_taking_stamps, repeated_acceptances)
     from msgs_py.bag import read_bag
 
     bag = pathlib.Path(args.bag)
@@ -399,6 +399,7 @@ def reexecute(args) -> int:
     base_t: list[float] = []
     base_p: list[tuple] = []
     fsm: list[tuple[int, str]] = []
+    taken: list[int] = []  # the new controller's plans_taken, per state (as fsm)
     gated: list[int] = []
     grippers: list[tuple[int, bytes]] = []  # the new controller's gripper requests not yet relayed
     commands: dict[int, bytes] = {}  # the new controller's joint_command per stamp
@@ -486,6 +487,7 @@ def reexecute(args) -> int:
     def on_state(msg: ControllerState) -> None:
         stamp = msg.header.stamp.sec * NS + msg.header.stamp.nanosec
         fsm.append((stamp, msg.fsm_state))
+        taken.append(int(msg.plans_taken))
         state["last_state"] = max(state["last_state"], stamp)
         if delay:
             relay()
@@ -639,10 +641,13 @@ def reexecute(args) -> int:
     # after (its acceptance diagnostic, or the periodic diagnostics' copy of it), as the recorded
     # starts are found; when that is not known for every plan, both runs' starts by the FSM's
     # first change (from the gated tick here), so that the two are found by the same rule
+    # first the new controller's own count of the plans it took (on every state: not missed)
+    new_starts = plan_taking_stamps([s for s, _ in fsm], taken, len(gated))
     afters = [accepted_after[k] if k < len(accepted_after) and accepted_after[k] is not None
               else (periodic_after[k] if k < len(periodic_after) else None) for k in range(len(gated))]
     stamps_fsm = sorted(s for s, _ in fsm)
-    new_starts = [first_tick_after(stamps_fsm, a) for a in afters if a is not None]
+    if new_starts is None:
+        new_starts = [first_tick_after(stamps_fsm, a) for a in afters if a is not None]
     if len(new_starts) != len(gated) or None in new_starts:
         starts = plan_start_stamps(run, from_acceptance=False)
         new_starts = []

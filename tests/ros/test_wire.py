@@ -149,10 +149,11 @@ def test_controller_state_writer_is_byte_exact():
         msg = ControllerState(fsm_state=fsm, mode=mode, transition_index=index, active_contacts=list(contacts),
                               task_names=list(names), task_errors=list(errors), qp_status=status,
                               qp_solve_time_ms=solve, tick_time_ms=tick, qp_failures=failures,
-                              replan_reason=reason, offset_surface=surface, surface_offset=list(offset))
+                              replan_reason=reason, offset_surface=surface, surface_offset=list(offset),
+                              plans_taken=k // 3)
         msg.header.stamp = Time(sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000)
         got = writer.payload(stamp, fsm, mode, index, contacts, names, np.array(errors), status, solve, tick, failures,
-                             reason, surface, offset)
+                             reason, surface, offset, k // 3)
         assert len(got) == len(serialize_message(msg)), f"tick {k}"
         back = deserialize_message(got, ControllerState)
         assert back == msg, f"tick {k} ({fsm}): {back} != {msg}"

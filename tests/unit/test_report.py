@@ -141,6 +141,34 @@ def test_plan_start_from_the_controllers_acceptance_not_from_the_recorders_arriv
     assert repeated.plans_after_tick_ns == [380_000_000] and plan_start_stamps(repeated) == [400_000_000]
 
 
+def test_plan_start_from_the_controllers_count_on_every_state(tmp_path):
+    """controller/state counts the plans the controller took (plans_taken): a plan starts on the
+    first state that counts it, with no diagnostic in the bag and whatever the arrival order; two
+    plans between two ticks, a plan on the first tick and a count that does not match the bag's
+    plans (it falls back to the FSM rule) too."""
+    from climb_msgs.msg import ControllerState, WholeBodyPlan
+
+    from climb_coordinator.report import load_run, plan_start_stamps, plan_taking_stamps
+    from msgs_py.bag import BagRecorder
+
+    with BagRecorder(tmp_path / "counted", close_on_signals=False) as rec:
+        log = 10
+        for k in range(100):
+            log += 20_000_000
+            cs = ControllerState(fsm_state=FSM[k], mode="qp", plans_taken=int(k >= 20) + int(k >= 60))
+            _stamp(cs, 0.02 * k)
+            rec.write("/controller/state", cs, log)
+            if k in (25, 65):  # logged after the controller states of the ticks that took them
+                rec.write("/whole_body_plan", WholeBodyPlan(robot="g1"), log + 1)
+    run = load_run(tmp_path / "counted")
+    assert list(run.plans_taken[[0, 20, 60, 99]]) == [0, 1, 2, 2]
+    assert plan_start_stamps(run) == [400_000_000, 1_200_000_000]
+    assert plan_taking_stamps([5, 10, 15], [0, 2, 2], 2) == [10, 10]
+    assert plan_taking_stamps([5, 10, 15], [1, 1, 2], 2) == [5, 15]
+    assert plan_taking_stamps([5, 10, 15], [0, 0, 0], 1) is None
+    assert plan_taking_stamps([5, 10, 15], [3, 3, 4], 3) is None
+
+
 def test_compare_base_aligns_on_stamps():
     from climb_coordinator.report import compare_base
 

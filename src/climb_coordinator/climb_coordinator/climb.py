@@ -336,6 +336,8 @@ class InProcessExecutor:
         else:
             self._reset_index()
         self.controller.set_plan(plan)
+        if self.bag is not None:
+            self.bag.plans_taken += 1
 
     def _status(self) -> ExecStatus:
         s, c = self.runner.sim_state, self.controller

@@ -57,6 +57,7 @@ class BagWriter:
         self.ft_frames = dict(ft_frames)
         self.root_link = root_link
         self.count = 0
+        self.plans_taken = 0  # plans handed to the controller (controller/state's plans_taken)
 
     def write(self, sim_state, output) -> None:
         from climb_msgs.msg import ControllerState
@@ -99,7 +100,7 @@ class BagWriter:
                              active_contacts=list(s.active_contacts), task_names=list(s.task_names),
                              task_errors=[float(e) for e in s.task_errors], qp_status=int(s.qp_status),
                              qp_solve_time_ms=float(s.qp_solve_time_ms), tick_time_ms=float(s.tick_time_ms),
-                             qp_failures=int(s.qp_failures))
+                             qp_failures=int(s.qp_failures), plans_taken=int(self.plans_taken))
         cs.header = make_header(t)
         rec.write("controller/state", cs, stamp_ns)
         self.count += 1

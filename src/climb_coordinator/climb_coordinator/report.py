@@ -63,6 +63,7 @@ class RunData:
     tick_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))
     qp_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))
     qp_failures: int = 0
+    plans_taken: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # per state (0: older bags)
     mode: str = ""
     contacts_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     limbs: list[str] = field(default_factory=list)
@@ -176,7 +177,8 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
                 if cs and t < cs[-1][0]:
                     cs = []
                 cs.append((t, int(log_ns), msg.fsm_state, int(msg.transition_index), float(msg.tick_time_ms),
-                           float(msg.qp_solve_time_ms), int(msg.qp_failures), msg.mode))
+                           float(msg.qp_solve_time_ms), int(msg.qp_failures), msg.mode,
+                           int(getattr(msg, "plans_taken", 0))))
             elif topic == "sim/contacts":
                 t = _stamp(msg.header) / _NS
                 if t < last["contacts"]:
@@ -245,6 +247,7 @@ def load_run(path: str | pathlib.Path, *, max_rate_hz: float | None = None) -> R
         run.qp_ms = np.array([c[5] for c in cs])
         run.qp_failures = max(c[6] for c in cs)
         run.mode = cs[-1][7]
+        run.plans_taken = np.array([c[8] for c in cs], np.int64)
     run.contacts_t = np.asarray(ct)
     k = len(run.limbs)
     run.normal = np.asarray(cn, float).reshape(len(ct), k)
@@ -310,22 +313,45 @@ def first_tick_after(stamps_ns, after_ns: int) -> int | None:
     return None
 
 
+def plan_taking_stamps(stamps_ns, counts, plans: int) -> list[int] | None:
+    """[ns] the first tick of each of ``plans`` plans from a controller's states (stamps in order)
+    and their plans_taken counts: the states whose count went up from the state before (twice for
+    two plans taken between two ticks), and the first state when it already counts one plan that
+    no other state does (a plan taken on the first tick). None when the counts do not account for
+    exactly ``plans`` plans (older bags carry no count: all zero)."""
+    counts = [int(c) for c in counts]
+    if not counts:
+        return None
+    out = []
+    for i in range(1, len(counts)):
+        out.extend([int(stamps_ns[i])] * max(0, counts[i] - counts[i - 1]))
+    if len(out) == plans - 1 and counts[0] >= 1:
+        out.insert(0, int(stamps_ns[0]))
+    return out if len(out) == plans and plans > 0 else None
+
+
 def plan_start_stamps(run: RunData, from_acceptance: bool = True) -> list[int]:
     """[ns] for each recorded whole_body_plan, the sim stamp of the first controller tick that
-    acted on it. When the controller said after which tick it accepted each plan (its
-    controller/plan diagnostic's after_tick_ns), the first controller/state after that tick: sim
+    acted on it. First the controller's own count (controller/state's plans_taken: the states
+    whose count went up, plan_taking_stamps), which rides on every state and so is not missed
+    when the recorder matched the controller's diagnostics late. Else, when the controller said
+    after which tick it accepted each plan (its controller/plan diagnostic's after_tick_ns), the
+    first controller/state after that tick: sim
     time alone, whatever order the recorder received the topics in. Else (older bags, a plan that
     started at an activation) the first controller/state received after the plan whose FSM state
     differs from the one before it (the FSM leaves idle / hold on the tick it takes a plan), or
     that starts a run (the first state, or the first after a sim reset: a controller activated
     once its plan exists takes it on its first tick). ``from_acceptance=False``: that second rule
-    only (to compare with a run whose acceptances are not known)."""
+    only (to compare with a run whose acceptances and counts are not known)."""
     out = []
     if not len(run.cs_t):
         return out
+    stamps = [int(round(t * _NS)) for t in run.cs_t]
+    taken = plan_taking_stamps(stamps, run.plans_taken, len(run.plans_log_ns)) if from_acceptance else None
+    if taken is not None:
+        return taken
     if from_acceptance and len(run.plans_after_tick_ns) == len(run.plans_log_ns) \
             and all(a is not None for a in run.plans_after_tick_ns):
-        stamps = [int(round(t * _NS)) for t in run.cs_t]
         starts = [first_tick_after(stamps, a) for a in run.plans_after_tick_ns]
         if all(s is not None for s in starts):
             return starts

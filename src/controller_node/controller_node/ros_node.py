@@ -194,6 +194,7 @@ class ControllerNode(LifecycleNode):
         # the controller to the new world's state): started right after that reset
         self._plan_at_activation = None
         self._plans_after: list[str] = []  # [ns] after_tick_ns of the plans accepted (periodic diagnostics)
+        self.plans_taken = 0  # plans handed to the controller (controller/state's plans_taken)
         self._latest: dict[str, object] = {}
         self._stamps: dict[str, int] = {}
         self._received_at = 0.0  # [s] perf_counter when the newest complete state arrived
@@ -491,6 +492,7 @@ class ControllerNode(LifecycleNode):
         else:
             try:
                 self.controller.set_plan(plan)
+                self.plans_taken += 1
             except PlanRefused as err:
                 self.get_logger().error(f"rejected whole_body_plan: {err}")
                 diagnose(self, "controller/plan", f"rejected whole_body_plan: {err}", level=2,
@@ -576,6 +578,7 @@ class ControllerNode(LifecycleNode):
             plan, self._plan_at_activation = self._plan_at_activation, None
             if plan is not None:
                 c.set_plan(plan)  # a reset controller is idle: the plan is taken
+                self.plans_taken += 1
         t_state = time.perf_counter()
         out = c.tick(state)
         # the command goes out first; everything else (grippers, controller/state, diagnostics,
@@ -611,7 +614,7 @@ class ControllerNode(LifecycleNode):
         self.pub_state.publish(self._state_writer.payload(
             stamp, s.fsm_state, s.mode, int(s.transition_index), s.active_contacts, s.task_names, s.task_errors,
             _QP_STATUS[s.qp_status], float(s.qp_solve_time_ms), float(s.tick_time_ms), int(s.qp_failures),
-            reason, surface, offset))
+            reason, surface, offset, self.plans_taken))
 
     def latency_stats(self) -> dict[str, float]:
         out = {}

@@ -296,7 +296,8 @@ class ControllerStateWriter:
     Its strings (FSM state, mode, active contacts, task names, replan reason, offset surface)
     change only when the FSM or the contact set does, so each distinct set is serialized once by
     ``serialize(msg)`` (rclpy's own serialization) and reused: per tick the stamp, the transition
-    index, the task errors, the QP status, the times and the surface offset are written in place."""
+    index, the task errors, the QP status, the times, the counts and the surface offset are written
+    in place."""
 
     _LIMIT = 256  # layouts kept (a run sees a few dozen)
 
@@ -308,7 +309,8 @@ class ControllerStateWriter:
     def payload(self, stamp_ns: int, fsm_state: str, mode: str, transition_index: int,
                 active_contacts: tuple[str, ...], task_names: tuple[str, ...], task_errors,
                 qp_status: int, qp_solve_time_ms: float, tick_time_ms: float, qp_failures: int,
-                replan_reason: str = "", offset_surface: str = "", surface_offset=(0.0, 0.0, 0.0)) -> bytes:
+                replan_reason: str = "", offset_surface: str = "", surface_offset=(0.0, 0.0, 0.0),
+                plans_taken: int = 0) -> bytes:
         key = (fsm_state, mode, tuple(active_contacts), tuple(task_names), replan_reason, offset_surface)
         layout = self._layouts.get(key)
         if layout is None:
@@ -322,6 +324,7 @@ class ControllerStateWriter:
         _U8.pack_into(buffer, at["qp_status"], qp_status)
         _F64_PAIR.pack_into(buffer, at["qp_solve_time_ms"], qp_solve_time_ms, tick_time_ms)
         _U32.pack_into(buffer, at["qp_failures"], qp_failures)
+        _U32.pack_into(buffer, at["plans_taken"], plans_taken)
         _F64_TRIPLE.pack_into(buffer, at["surface_offset"], *surface_offset)
         return bytes(buffer)
 
@@ -344,6 +347,7 @@ class ControllerStateWriter:
         if r.scalar(8) != at["qp_solve_time_ms"] + 8:  # tick_time_ms right after: written as a pair
             raise CdrError("ControllerState: qp_solve_time_ms and tick_time_ms are not adjacent")
         at["qp_failures"] = r.scalar(4)
+        at["plans_taken"] = r.scalar(4)
         r.string()
         r.string()
         at["surface_offset"] = r.doubles(3)[0]
