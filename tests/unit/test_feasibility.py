@@ -243,6 +243,36 @@ def test_robot_grip_strength_decides_the_hang(g1, env, cfg, hanging):
                                                              rel=0.01)
 
 
+def test_grasp_moment_limit_caps_the_moment_each_grasp_carries(g1, env, cfg, hanging):
+    """A horizontal push on the pelvis of a robot hanging from two grasps on one rung turns it about
+    the rung: only moments at the grasps hold it. The 8 points alone carry it (their boxes allow
+    tens of N m); grasp_moment_limit caps each world-axis component about the grasp centre and
+    names the grasp when the push needs more."""
+    stance, q = hanging
+    data = g1.model.createData()
+    pin.framesForwardKinematics(g1.model, data, q)
+    pelvis = data.oMf[g1.model.getFrameId("pelvis")].translation.copy()
+    push = [("pelvis", pelvis, np.array([20.0, 0.0, 0.0]))]
+    loose = fz.with_check(cfg, torque_limit_fraction=100.0)
+
+    def moments(res):
+        return {h.limb: np.cross(h.positions - h.centre, res.contact_forces[h.limb]).sum(axis=0) for h in stance.holds}
+
+    free = fz.check(g1, env, q, stance, loose, collision=False, external_forces=push)
+    assert free.feasible, free.summary()
+    need = sum(abs(m[1]) for m in moments(free).values())  # about the rung axis' normal (y: the rung)
+    lever = float((0.5 * (stance.holds[0].centre + stance.holds[1].centre) - pelvis)[2])
+    assert need == pytest.approx(20.0 * lever, rel=0.05)  # the push's moment about the rung
+    capped = fz.check(g1, env, q, stance, fz.with_check(loose, grasp_moment_limit=0.6 * need), collision=False,
+                      external_forces=push)
+    assert capped.feasible, capped.summary()
+    assert all(np.abs(m).max() <= 0.6 * need + 1e-6 for m in moments(capped).values())
+    bad = fz.check(g1, env, q, stance, fz.with_check(loose, grasp_moment_limit=0.4 * need), collision=False,
+                   external_forces=push)
+    assert sorted(bad.violated) == ["grip_limit:left_hand", "grip_limit:right_hand"]
+    assert min(bad.grip_ratios.values()) > 1.0
+
+
 # --------------------------------------------------------------------------------------------
 # friction
 

@@ -28,8 +28,9 @@ bare unilateral constraints ("friction" if that helps, "equilibrium" if not).
 Grip polytope: the total grasp force is bounded along 13 directions (3 axes, 6 face and 4 body
 diagonals of a cube; both signs): exact for forces along those directions, at most 13 % over the grip
 strength in between. Each grasp point's force components are also boxed by the grip strength
-(this bounds the squeeze forces, hence the moment a grasp can carry); the grip ratio of a grasp
-is the larger of the two.
+(this bounds the squeeze forces, hence the moment a grasp can carry); with ``grasp_moment_limit``
+each world-axis component of the moment about the grasp centre is capped too (the points' boxes
+alone let a grasp carry tens of N m). The grip ratio of a grasp is the largest of these.
 """
 from __future__ import annotations
 
@@ -82,6 +83,10 @@ class CheckParams:
         "share of the URDF effort limits the stance may use"))
     grip_limit_fraction: float = param(1.0, unit="-", min=0.0, description=(
         "share of each grasp's grip_force_limit the stance may use"))
+    grasp_moment_limit: float = param(0.0, unit="N m", min=0.0, description=(
+        "cap on each world-axis component of a grasp's moment about its centre, scaled like the grip "
+        "(0: none beyond the points' boxes, which let 8 points 4 cm apart carry ~30 N m: a squeeze no "
+        "hand gives; the controller caps its grasp wrench per axis, contacts.grasp_torque_limit)"))
     load_ratio_weight: float = param(1.0, unit="-", min=0.0, description=(
         "cost weight of the load ratio r (max of torque and grip ratios)"))
     force_regularization: float = param(1.0e-7, unit="1/N^2", min=1.0e-12, description=(
@@ -187,6 +192,7 @@ class _CompiledStance:
     normal_rows: np.ndarray
     grip_rows: np.ndarray
     grip_dirs_per_hold: dict[str, tuple[int, float]]  # limb -> (first force index, grip limit [N])
+    grip_moments: dict[str, tuple[np.ndarray, float]]  # limb -> (3 x 3k moment rows over its forces, cap [N m])
     force_lower: np.ndarray  # simple bounds of the force variables
     force_upper: np.ndarray
     contacts: list[tuple[str, str]]  # (limb, env surface) pairs for the collision exclusion
@@ -270,7 +276,7 @@ def _compile(robot: Any, env: Any, stance: Stance, cfg: FeasibilityConfig) -> _C
     f_lo = np.full(nf, -p.unbounded_force)
     f_hi = np.full(nf, p.unbounded_force)
     m = p.friction_pyramid_sides
-    grip_info = {}
+    grip_info, grip_moments = {}, {}
     for hold, o in zip(stance.holds, offsets):
         if hold.bilateral:
             G = p.grip_limit_fraction * float(hold.grip_force_limit)
@@ -286,6 +292,19 @@ def _compile(robot: Any, env: Any, stance: Stance, cfg: FeasibilityConfig) -> _C
                 rows.append(row); rcoef.append(-G); up.append(0.0); lo.append(-np.inf); kind.append(f"grip:{hold.limb}")
                 rows.append(-row); rcoef.append(-G); up.append(0.0); lo.append(-np.inf); kind.append(f"grip:{hold.limb}")
             grip_info[hold.limb] = (o, G, k)
+            M = p.grip_limit_fraction * p.grasp_moment_limit
+            if M > 0.0:  # m . e_a = sum_i f_i . (e_a x (p_i - c)), about the grasp centre
+                arms = hold.positions - np.asarray(hold.centre, dtype=float)
+                moment = np.zeros((3, 3 * k))
+                for a, e in enumerate(np.eye(3)):
+                    moment[a] = np.cross(e, arms).reshape(-1)
+                for sign in (1.0, -1.0):
+                    for a in range(3):
+                        row = np.zeros(nf)
+                        row[o:o + 3 * k] = sign * moment[a]
+                        rows.append(row); rcoef.append(-M); up.append(0.0); lo.append(-np.inf)
+                        kind.append(f"grip:{hold.limb}")
+                grip_moments[hold.limb] = (moment, M)
             continue
         mu = p.friction_margin * float(hold.friction)
         if not (math.isfinite(mu) and mu >= 0.0):
@@ -343,6 +362,7 @@ def _compile(robot: Any, env: Any, stance: Stance, cfg: FeasibilityConfig) -> _C
         kinds=kinds, A_static=A, r_static=np.array(rcoef), upper_static=np.array(up), lower_static=np.array(lo),
         row_kind=kind, friction_rows=kinds_arr == "friction", normal_rows=kinds_arr == "normal",
         grip_rows=np.array([k.startswith("grip:") for k in kind], dtype=bool), grip_dirs_per_hold=grip_info,
+        grip_moments=grip_moments,
         force_lower=f_lo, force_upper=f_hi, contacts=contacts, sole_vertices=soles, contact_refs=refs, H=np.diag(H),
         c=c)
 
@@ -759,6 +779,9 @@ def _grip_ratios(cs: _CompiledStance, x: np.ndarray, per_point: bool = False) ->
         if per_point:
             load = max(load, float(np.max(np.abs(f))))
         out[limb] = load / G if G > 0 else (0.0 if load < 1e-9 else np.inf)
+        if limb in cs.grip_moments:  # the moment about the grasp centre against its cap
+            moment, M = cs.grip_moments[limb]
+            out[limb] = max(out[limb], float(np.max(np.abs(moment @ f))) / M)
     return out
 
 
@@ -797,6 +820,11 @@ def _result(ws: _Workspace, cs: _CompiledStance, g: np.ndarray, Jc: np.ndarray, 
 def total_contact_force(result: FeasibilityResult) -> np.ndarray:
     """Sum of all contact forces [N], world."""
     return sum((f.sum(axis=0) for f in result.contact_forces.values()), np.zeros(3))
+
+
+def tighter_moment_limit(a: float, b: float) -> float:
+    """The tighter of two grasp_moment_limit values (0 means none)."""
+    return min(x for x in (a, b) if x > 0.0) if a > 0.0 or b > 0.0 else 0.0
 
 
 def with_check(cfg: FeasibilityConfig, **changes: Any) -> FeasibilityConfig:

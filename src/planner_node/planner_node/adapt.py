@@ -121,6 +121,8 @@ class AdaptContext:
             grip_limit_fraction=min(self.frozen_cfg.check.grip_limit_fraction, p.grip_limit_fraction),
             friction_margin=min(self.frozen_cfg.check.friction_margin, p.friction_margin),
             min_normal_force=max(self.frozen_cfg.check.min_normal_force, p.min_normal_force),
+            grasp_moment_limit=feasibility.tighter_moment_limit(self.frozen_cfg.check.grasp_moment_limit,
+                                                                p.grasp_moment_limit),
             sole_cop_margin=max(self.frozen_cfg.check.sole_cop_margin, p.sole_cop_margin))
         self.hold_params = self.frozen_cfg.holds
         base_ik = core_ik.load_ik_params()

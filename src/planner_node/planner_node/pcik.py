@@ -364,11 +364,14 @@ def static_torque_derivative(model: pin.Model, data: pin.Data, q: np.ndarray, fr
 
 
 def feasibility_config_for(base: feasibility.FeasibilityConfig, params: PCIKParams) -> feasibility.FeasibilityConfig:
-    """The core check's force model with the IK's margins (cones, grip, torque fraction, margin)."""
+    """The core check's force model with the IK's margins (cones, grip and grasp moments, torque
+    fraction, margin)."""
     return feasibility.with_check(base, friction_margin=params.friction_margin,
                                   grip_limit_fraction=params.grip_limit_fraction,
                                   torque_limit_fraction=params.torque_limit_fraction,
                                   min_normal_force=params.min_normal_force,
+                                  grasp_moment_limit=feasibility.tighter_moment_limit(
+                                      base.check.grasp_moment_limit, params.grasp_moment_limit),
                                   sole_cop_margin=max(base.check.sole_cop_margin, params.sole_cop_margin),
                                   collision_margin=params.collision_margin)
 
