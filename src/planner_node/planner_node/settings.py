@@ -54,9 +54,9 @@ class PCIKParams:
         "share of the effort limits the IK may use (room for the interpolation between solutions)"))
     grip_limit_fraction: float = param(0.9, unit="-", min=0.1, max=1.0, description="share of the grip strength the IK may use")
     friction_margin: float = param(0.9, unit="-", min=0.1, max=1.0, description="the IK's friction cones use margin * mu")
-    grasp_moment_limit: float = param(6.0, unit="N m", min=0.0, description=(
+    grasp_moment_limit: float = param(0.0, unit="N m", min=0.0, description=(
         "per-axis cap on a grasp's moment in the IK's statics, scaled by grip_limit_fraction (the controller's "
-        "contacts.grasp_torque_limit; 0 = the frozen check's)"))
+        "contacts.grasp_torque_limit is 6; 0 = the frozen check's, none: docs/planner.md)"))
     min_normal_force: float = param(2.0, unit="N", min=0.0, description="least normal force per regular unilateral contact point")
     sole_cop_margin: float = param(0.0, unit="m", min=0.0, max=0.05, description=(
         "the IK's statics count a flat sole's corners this far inside its edges (the CoP kept off them)"))
@@ -147,9 +147,10 @@ class PlanningParams:
     grip_limit_fraction: float = param(0.95, unit="-", min=0.1, max=1.0, description=(
         "share of the grip strength the planner's own checks allow"))
     friction_margin: float = param(0.95, unit="-", min=0.1, max=1.0, description="planner's own checks use margin * mu")
-    grasp_moment_limit: float = param(6.0, unit="N m", min=0.0, description=(
+    grasp_moment_limit: float = param(0.0, unit="N m", min=0.0, description=(
         "planner's own checks: per-axis cap on a grasp's moment, scaled by grip_limit_fraction (the controller's "
-        "contacts.grasp_torque_limit: a stance whose grasps need more cannot be held by the QP; 0 = the frozen check's)"))
+        "contacts.grasp_torque_limit is 6: a stance whose grasps need more cannot be held by the QP; 0 = the frozen "
+        "check's, none: 6 cost 6 of 12 plans at 78-80 deg and no executed climb, docs/planner.md)"))
     min_normal_force: float = param(3.0, unit="N", min=0.0, description=(
         "planner's own checks: least normal force per unilateral contact point (keeps the CoP off the sole edges)"))
     sole_cop_margin: float = param(0.02, unit="m", min=0.0, max=0.05, description=(
