@@ -96,3 +96,44 @@ def _check_the_scene(result, settings) -> None:
         assert base[-1, 2] - base[0, 2] > 0.28 and base[-1, 0] - base[0, 0] > 0.9, (base[0, :3], base[-1, :3])
     finally:
         result.close()
+
+
+NARROW_PASSAGE_PLAN = pathlib.Path(__file__).resolve().parents[1] / "data" / "narrow_passage_plan.json"
+
+
+@pytest.mark.skipif(os.environ.get("CLIMB_SLOW_TESTS") != "1",
+                    reason="executes 594 s of motion (59 transitions, ~8 min wall): set CLIMB_SLOW_TESTS=1")
+def test_the_whole_narrow_passage_is_executed_to_the_goal(tmp_path):
+    """The whole scene of the paper's Fig. 3 (config/scenes/narrow_passage.yaml): the corridor, the
+    inclined floor, the flat floor, the 0.33 m step with the block beside it. Planned by guide path +
+    contact search + generic paths (tests/data/narrow_passage_plan.json: ``scripts/plan.py --scenario
+    narrow_passage --timeout 1500 --set contact_search.single_support_cop_margin=0.02 --set
+    contact_search.hand_release_min_contacts=2 --set contact_path.backtrack_window=2 --set
+    contact_search.repair_rounds=12``, then ``scripts/retime_plan.py --speed-scale 0.5``: at the
+    planner's speeds the first single-support step tipped G1 over its toe). Executed from standing to
+    the goal: 59 transitions, the feet on the ground, the incline, the floor and the step, the back of
+    the right hand on the block carrying >= 10 % of the weight while a foot is up."""
+    result, settings = execute_stored_scene_plan("narrow_passage", NARROW_PASSAGE_PLAN, tmp_path, 50)
+    try:
+        s = result.summary
+        assert s["success"], s["failure_reason"]
+        assert s["goal_reached"] and s["goal_distance_m"] <= 0.15 and not s["fell"], s
+        assert s["transitions_done"] == s["n_transitions"] == 59 and s["qp_failures"] == 0
+        assert {"ground", "incline", "floor", "palm_block", "step"} <= set(s["contacts_used"])
+        feet, loads = check_run(result, settings, "qp")  # loads in their cones, nothing fallen
+        weight = 9.81 * result.backend.robot.mass
+        log = result.log.loads
+        hand_while_a_foot_up = [h[0] for h, lf, rf in zip(log["right_hand"], log["left_foot"], log["right_foot"])
+                                if h is not None and h[2] == "palm_block"
+                                and (lf is None or lf[0] < 1.0 or rf is None or rf[0] < 1.0)]
+        assert hand_while_a_foot_up and max(hand_while_a_foot_up) >= 0.10 * weight, (hand_while_a_foot_up[:3], weight)
+        assert loads["left_foot"].surface == loads["right_foot"].surface == "step", loads
+        assert set(loads) == {"left_foot", "right_foot"}, loads
+        for foot in ("left_foot", "right_foot"):
+            sole = result.backend.surface_pose(foot)[:3, 3]
+            assert abs(sole[2] - 0.45) < 0.02 and 2.4 < sole[0] < 3.4, (foot, sole)
+        assert touched_surfaces(result.backend) <= {"step", "palm_block"}
+        base = result.log.arrays()["base"]
+        assert base[-1, 2] - base[0, 2] > 0.40 and base[-1, 0] - base[0, 0] > 2.9, (base[0, :3], base[-1, :3])
+    finally:
+        result.close()

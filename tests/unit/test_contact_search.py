@@ -312,3 +312,71 @@ def test_a_walked_ladder_is_stepped_up_one_tread_at_a_time(g1):
     unbounded = dataclasses.replace(settings.contact_search, foot_max_treads_up=0)
     assert len(cs._Search(g1, ship, unbounded, settings.pcik, None, walked=True)
                ._within_a_step(on_ground, "right_foot", feet_surfaces)) == 5
+
+
+def _scene_search(g1, scene: str, **changes):
+    from climb_core.environment import build_environment
+
+    settings = load_settings()
+    params = dataclasses.replace(settings.contact_search, **changes)
+    return cs._Search(g1, build_environment(scene), params, settings.pcik, None)
+
+
+def _flat_hold(limb, surface, x, y, z):
+    from climb_core.contact import ContactPoint, Hold
+
+    return Hold(limb, limb + ("_sole" if limb.endswith("foot") else "_palm"), surface,
+                (ContactPoint([x, y, z], [0.0, 0.0, 1.0]),), 0.8)
+
+
+def test_a_hand_is_released_only_on_two_other_supports(g1, monkeypatch):
+    """narrow_passage: the search moved the hand along the block standing on one foot (remove and
+    add again), a stance on one sole the adaptation then failed on (friction). A hand's contact is
+    removed only from a set that keeps ``hand_release_min_contacts`` (2: narrow_passage's setting); a
+    foot may still leave a foot and a hand (walking with the hand's support); the default, 1, does not
+    bound it."""
+    from climb_core.contact import Stance
+
+    lf = _flat_hold("left_foot", "ground", 0.0, 0.1, 0.0)
+    rf = _flat_hold("right_foot", "ground", 0.0, -0.1, 0.0)
+    hand = _flat_hold("right_hand", "palm_block", 0.3, -0.3, 0.68)
+
+    def removals(search, stance):
+        tried = []
+        monkeypatch.setattr(search, "_ik", lambda q, contacts, q_target: tried.extend(
+            c.limb for c in contacts if c.type == "zero_force"))  # and no child: None
+        node = cs.Node(stance, g1.q_reference())
+        search._children(node, search.target(g1.q_reference()), set())
+        return tried
+
+    search = _scene_search(g1, "narrow_passage_step", hand_release_min_contacts=2)
+    assert search.min_contacts == 1
+    assert removals(search, Stance((lf, hand))) == ["left_foot"]  # not the hand: one foot would be left
+    assert sorted(removals(search, Stance((lf, rf, hand)))) == ["left_foot", "right_foot", "right_hand"]
+    default = _scene_search(g1, "narrow_passage_step")  # off by default
+    assert sorted(removals(default, Stance((lf, hand)))) == ["left_foot", "right_hand"]
+
+
+def test_a_single_support_is_searched_with_the_soles_cop_margin(g1, monkeypatch):
+    """narrow_passage and car_ingress: the search stood G1 on one sole with the CoM 1-3 mm inside the
+    heel's edge (the IK's statics count the whole sole), which the adaptation's check, 2 cm inside
+    the edges (planning.sole_cop_margin), refused at every attempt. A set left on one regular contact
+    is solved with ``single_support_cop_margin`` (narrow_passage's 0.02); two or more keep the IK's own
+    margin."""
+    from planner_node import pcik
+
+    search = _scene_search(g1, "narrow_passage_step", single_support_cop_margin=0.02)
+    margins = []
+    monkeypatch.setattr(pcik, "solve", lambda *a, params, **k: margins.append(params.sole_cop_margin))
+    lf = _flat_hold("left_foot", "ground", 0.0, 0.1, 0.0)
+    rf = _flat_hold("right_foot", "ground", 0.0, -0.1, 0.0)
+    q = g1.q_reference()
+    search._ik(q, [pcik.ContactSpec("left_foot", pcik.REGULAR, hold=lf),
+                   pcik.ContactSpec("right_foot", pcik.ZERO_FORCE, hold=rf)], q)
+    search._ik(q, [pcik.ContactSpec("left_foot", pcik.REGULAR, hold=lf),
+                   pcik.ContactSpec("right_foot", pcik.REGULAR, hold=rf)], q)
+    assert margins == [0.02, load_settings().pcik.sole_cop_margin] and margins[1] == 0.0
+    margins.clear()
+    default = _scene_search(g1, "narrow_passage_step")  # off by default: the IK's own margin
+    default._ik(q, [pcik.ContactSpec("left_foot", pcik.REGULAR, hold=lf)], q)
+    assert margins == [0.0]

@@ -15,7 +15,9 @@ other:
 - *remove*: for every contact, the IK is called with that contact zero-force (the limb stays on its
   hold carrying nothing: the robot is in equilibrium on the others); on success the set without it
   is pushed; sets keep more than ``min_contacts`` contacts on a ladder (the three-support gait),
-  ``min_contacts_scene`` elsewhere (1: single support, walking);
+  ``min_contacts_scene`` elsewhere (1: single support, walking); a hand is removed only from a set
+  that keeps ``hand_release_min_contacts`` (1 by default; 2: never onto one foot alone), and a set
+  left on one contact is solved with ``single_support_cop_margin`` (off by default);
 - on a walked ladder (stairs: the caller's ``walked``) the IK pulls the CoM over the held feet and a
   free foot is offered the treads at most ``foot_max_treads_up`` above the other foot's
   (:func:`tread_levels`: one tread at a time);
@@ -324,13 +326,17 @@ class _Search:
     # ---- IK
     def _ik(self, q_seed: np.ndarray, contacts: list[pcik.ContactSpec], q_target: np.ndarray) -> pcik.PCIKResult | None:
         """The physics-constrained IK; None when the holds module cannot model a contact of the pair
-        (SpecError: e.g. a sole on a surface shape it cannot stand on)."""
+        (SpecError: e.g. a sole on a surface shape it cannot stand on). A set left on one contact
+        (single support) is solved with the soles' ``single_support_cop_margin``."""
         t = time.perf_counter()
         self.stats.ik_calls += 1
         com = self._feet_centroid(contacts)
+        params = self.pcik_params if com is None else self.pcik_com
+        if self.params.single_support_cop_margin > 0.0 and sum(1 for c in contacts if c.type == pcik.REGULAR) == 1:
+            params = dataclasses.replace(params, sole_cop_margin=max(params.sole_cop_margin,
+                                                                     self.params.single_support_cop_margin))
         try:
-            res = pcik.solve(self.robot, self.env, q_seed, contacts, q_target=q_target,
-                             params=self.pcik_params if com is None else self.pcik_com,
+            res = pcik.solve(self.robot, self.env, q_seed, contacts, q_target=q_target, params=params,
                              feasibility_cfg=self.cfg, com_target=com)
         except SpecError:
             res = None
@@ -414,6 +420,8 @@ class _Search:
                     break
         if len(stance.holds) > self.min_contacts:  # remove each contact (zero force)
             for h in stance.holds:
+                if limb_type(h.limb) == "hand" and len(stance.holds) - 1 < self.params.hand_release_min_contacts:
+                    continue
                 child = stance.without(h.limb)
                 if stance_key(child, self.params.key_resolution) in seen:
                     self.stats.skipped_visited += 1

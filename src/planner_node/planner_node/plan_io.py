@@ -209,3 +209,17 @@ def cached_plan(key: str, compute) -> tuple[WholeBodyPlan | None, dict]:
     except OSError:  # a cache that cannot be written costs time, never the plan
         pass
     return plan, meta
+
+
+def retimed(plan: WholeBodyPlan, model: Any, timing: Any) -> WholeBodyPlan:
+    """The same paths, each transition's way-points timed again under ``timing``
+    (:class:`planner_node.settings.TimingParams`: joint / base speed limits, ramps, least duration),
+    as the planner times them (:func:`planner_node.interpolation.time_parameterize`)."""
+    import dataclasses
+
+    from .interpolation import time_parameterize
+
+    transitions = [dataclasses.replace(t, times=time_parameterize(
+        model, list(t.path), timing.max_joint_speed, timing.max_base_speed, timing.max_base_angular_speed,
+        timing.min_transition_duration, timing.ramp_fraction)) for t in plan.transitions]
+    return dataclasses.replace(plan, transitions=transitions)

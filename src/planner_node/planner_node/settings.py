@@ -189,6 +189,12 @@ class ContactSearchParams:
         "on a ladder, contacts are removed only from sets with more than this (3: the quasi-static climbing gait)"))
     min_contacts_scene: int = param(1, unit="-", min=1, description=(
         "in a scene without a ladder, the same bound (1: single support, the robot walks)"))
+    single_support_cop_margin: float = param(0.0, unit="m", min=0.0, max=0.05, description=(
+        "the search's IK on a set left on one contact (single support): a flat sole's corners count this far "
+        "inside its edges, as the adaptation's check counts them (planning.sole_cop_margin; 0: the whole sole)"))
+    hand_release_min_contacts: int = param(1, unit="-", min=1, description=(
+        "a hand's contact is removed only from a set that keeps at least this many (2: a hand's support is "
+        "released or moved on two other supports, never onto one foot alone)"))
     com_over_feet_weight: float = param(3000.0, unit="1/m^2", min=0.0, description=(
         "on a walked ladder (stairs, ship ladders: guide_path.walk_max_incline_deg), the search's IK's cost of the "
         "CoM's horizontal distance to the held feet's centroid: a hand may let go of a rail without the robot "

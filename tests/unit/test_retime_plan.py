@@ -1,0 +1,60 @@
+"""scripts/retime_plan.py and planner_node.plan_io.retimed: a stored plan timed again, paths kept."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from planner_node import plan_io
+from planner_node.interpolation import time_parameterize
+from planner_node.settings import load_settings
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+STORED = ROOT / "tests" / "data" / "narrow_passage_step_plan.json"
+
+
+def test_retimed_keeps_the_paths_and_times_them_under_the_given_limits(g1):
+    plan, _ = plan_io.load_plan(STORED)
+    timing = load_settings().timing
+    half = dataclasses.replace(timing, max_joint_speed=timing.max_joint_speed / 2,
+                               max_base_speed=timing.max_base_speed / 2,
+                               max_base_angular_speed=timing.max_base_angular_speed / 2)
+    same = plan_io.retimed(plan, g1.model, timing)
+    slow = plan_io.retimed(plan, g1.model, half)
+    for t, a, b in zip(plan.transitions, same.transitions, slow.transitions):
+        np.testing.assert_array_equal(t.path, b.path)
+        assert b.stance == t.stance and b.target_stance == t.target_stance and b.primitive == t.primitive
+        np.testing.assert_allclose(a.times, t.times, atol=1e-6)  # the planner's own timing, reproduced
+        expected = time_parameterize(g1.model, list(t.path), half.max_joint_speed, half.max_base_speed,
+                                     half.max_base_angular_speed, half.min_transition_duration, half.ramp_fraction)
+        np.testing.assert_allclose(b.times, expected)
+        # half the speed: twice the time, unless the least duration of a transition decides
+        assert b.times[-1] == pytest.approx(max(2 * t.times[-1], half.min_transition_duration), rel=1e-6) \
+            or t.times[-1] <= half.min_transition_duration + 1e-9
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, str(ROOT / "scripts" / "retime_plan.py"), *args],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_the_script_writes_the_retimed_plan_and_refuses_bad_options(tmp_path):
+    out = tmp_path / "slow.json"
+    run = _run(str(STORED), str(out), "--speed-scale", "0.5")
+    assert run.returncode == 0, run.stderr
+    summary = json.loads(run.stdout.strip().splitlines()[-1])
+    assert summary["transitions"] == 19 and summary["duration_s"] > 1.8 * summary["duration_before_s"]
+    plan, metadata = plan_io.load_plan(out)
+    assert metadata["retimed"]["speed_scale"] == 0.5 and len(plan.transitions) == 19
+    for args, field in ((["--speed-scale", "0"], "speed-scale"), (["--set", "pcik.max_iterations=3"], "--set"),
+                        (["--set", "timing.max_base_speed=-1.0"], "--set")):
+        bad = _run(str(STORED), str(tmp_path / "x.json"), *args)
+        assert bad.returncode == 2 and bad.stderr.startswith(f"error: {field}"), bad.stderr
+        assert "Traceback" not in bad.stderr
+    missing = _run(str(tmp_path / "none.json"), str(tmp_path / "x.json"))
+    assert missing.returncode == 2 and missing.stderr.startswith("error: plan:"), missing.stderr
