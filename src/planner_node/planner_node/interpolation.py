@@ -128,13 +128,17 @@ def projected_interpolation(
 
 def time_parameterize(model: pin.Model, path: Sequence[np.ndarray], max_joint_speed: float,
                       max_base_speed: float, max_base_angular_speed: float,
-                      min_duration: float = 0.0, ramp_fraction: float = 0.0) -> np.ndarray:
+                      min_duration: float = 0.0, ramp_fraction: float = 0.0,
+                      max_com_acceleration: float = 0.0) -> np.ndarray:
     """Times [s] of the way-points so that no joint exceeds ``max_joint_speed`` [rad/s], the
     base ``max_base_speed`` [m/s] / ``max_base_angular_speed`` [rad/s] on any segment.
 
     ``ramp_fraction`` slows the first and last segments (a slow start and stop, still piecewise
     linear): segment durations are scaled by up to 2x at the ends. ``min_duration`` [s] is the
-    least total duration of the path.
+    least total duration of the path. ``max_com_acceleration`` [m/s^2] (0: no bound) bounds the
+    horizontal acceleration of the centre of mass at every way-point, the path starting and ending
+    at rest (:func:`bound_com_acceleration`): a quasi-static plan's ZMP then stays within
+    z_com / g * that bound of the CoM's ground projection.
     """
     n = len(path)
     if n == 0:
@@ -153,7 +157,39 @@ def time_parameterize(model: pin.Model, path: Sequence[np.ndarray], max_joint_sp
     total = durations.sum()
     if total < min_duration:
         durations = (durations + (min_duration - total) / max(n - 1, 1)) if total <= 0 else durations * (min_duration / total)
+    if max_com_acceleration > 0.0 and n > 1:
+        durations = bound_com_acceleration(model, path, durations, max_com_acceleration)
     return np.concatenate([[0.0], np.cumsum(durations)])
+
+
+def bound_com_acceleration(model: pin.Model, path: Sequence[np.ndarray], durations: np.ndarray,
+                           max_acceleration: float, iterations: int = 200) -> np.ndarray:
+    """Segment durations, lengthened where needed, under which the centre of mass's horizontal
+    acceleration at every way-point is at most ``max_acceleration`` [m/s^2]: the CoM moves at a
+    constant velocity along each segment, from rest at the first way-point to rest at the last, and
+    changes velocity at a way-point over the half-durations of its two segments. A way-point over
+    the bound stretches its two segments by sqrt(excess) (acceleration scales with 1 / time^2);
+    repeated until none is over (to 1 %) or ``iterations``."""
+    data = model.createData()
+    com = np.array([pin.centerOfMass(model, data, np.asarray(q, dtype=float))[:2] for q in path])
+    step = np.diff(com, axis=0)
+    d = np.maximum(np.asarray(durations, dtype=float), 1e-6).copy()
+    for _ in range(iterations):
+        v = np.vstack([np.zeros(2), step / d[:, None], np.zeros(2)])  # rest before and after
+        half = np.concatenate([[d[0]], d]) * 0.5 + np.concatenate([d, [d[-1]]]) * 0.5
+        half[0], half[-1] = 0.5 * d[0], 0.5 * d[-1]
+        acc = np.linalg.norm(np.diff(v, axis=0), axis=1) / half  # at way-points 0..n-1
+        excess = acc / max_acceleration
+        if excess.max() <= 1.01:
+            break
+        stretch = np.ones(len(d))
+        for i in np.nonzero(excess > 1.0)[0]:
+            f = float(np.sqrt(excess[i]))
+            for k in (i - 1, i):
+                if 0 <= k < len(d):
+                    stretch[k] = max(stretch[k], f)
+        d *= stretch
+    return d
 
 
 def max_joint_jump(model: pin.Model, path: Sequence[np.ndarray]) -> float:

@@ -221,5 +221,5 @@ def retimed(plan: WholeBodyPlan, model: Any, timing: Any) -> WholeBodyPlan:
 
     transitions = [dataclasses.replace(t, times=time_parameterize(
         model, list(t.path), timing.max_joint_speed, timing.max_base_speed, timing.max_base_angular_speed,
-        timing.min_transition_duration, timing.ramp_fraction)) for t in plan.transitions]
+        timing.min_transition_duration, timing.ramp_fraction, timing.max_com_acceleration)) for t in plan.transitions]
     return dataclasses.replace(plan, transitions=transitions)

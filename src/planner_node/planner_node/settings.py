@@ -126,6 +126,9 @@ class TimingParams:
     ramp_fraction: float = param(0.15, unit="-", min=0.0, max=0.5, description=(
         "share of a transition slowed down at its start and end (up to 2x slower)"))
     min_transition_duration: float = param(1.0, unit="s", min=0.0, description="least duration of one transition")
+    max_com_acceleration: float = param(0.0, unit="m/s^2", min=0.0, description=(
+        "largest horizontal acceleration of the centre of mass at a way-point, each transition from rest to rest "
+        "(the ZMP within z_com / g times it of the CoM; 0: no bound)"))
 
 
 @dataclass(frozen=True)
