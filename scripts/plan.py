@@ -135,21 +135,6 @@ def scene_fields(scenario, result) -> dict:
     return out
 
 
-def parse_overrides(items: list[str]) -> dict:
-    """``GROUP.FIELD=VALUE`` strings -> {"GROUP.FIELD": value} (values read as YAML scalars)."""
-    import yaml
-
-    from climb_core.errors import SpecError
-
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or "." not in key:
-            raise SpecError("--set", f"expects GROUP.FIELD=VALUE, got {item!r}")
-        out[key.strip()] = yaml.safe_load(value)
-    return out
-
-
 def _reason(args: argparse.Namespace) -> dict:
     """The summary's ``strategy_reason`` when the strategy was chosen for the scenario."""
     reason = getattr(args, "strategy_reason", "")
@@ -167,7 +152,7 @@ def run(args: argparse.Namespace):
     from planner_node import plan_io
     from planner_node.climb_planner import plan_climb
     from planner_node.primitives import load_library
-    from planner_node.settings import apply_overrides, choose_strategy, load_settings
+    from planner_node.settings import apply_overrides, choose_strategy, load_settings, parse_overrides
 
     settings = apply_overrides(load_settings(), parse_overrides(args.set), where="--set")
     if not args.strategy:  # chosen for the scenario (a scene, stairs: search), the reason in the summary

@@ -35,10 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     from climb_core.errors import SpecError
     from climb_core.robot import load_robot
     from planner_node import plan_io
-    from planner_node.settings import apply_overrides, load_settings
-
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
-    from plan import parse_overrides
+    from planner_node.settings import apply_overrides, load_settings, parse_overrides
 
     try:
         if not 0.0 < args.speed_scale <= 10.0:

@@ -176,8 +176,7 @@ def bound_com_acceleration(model: pin.Model, path: Sequence[np.ndarray], duratio
     d = np.maximum(np.asarray(durations, dtype=float), 1e-6).copy()
     for _ in range(iterations):
         v = np.vstack([np.zeros(2), step / d[:, None], np.zeros(2)])  # rest before and after
-        half = np.concatenate([[d[0]], d]) * 0.5 + np.concatenate([d, [d[-1]]]) * 0.5
-        half[0], half[-1] = 0.5 * d[0], 0.5 * d[-1]
+        half = 0.5 * (np.concatenate([[0.0], d]) + np.concatenate([d, [0.0]]))  # time around each way-point
         acc = np.linalg.norm(np.diff(v, axis=0), axis=1) / half  # at way-points 0..n-1
         excess = acc / max_acceleration
         if excess.max() <= 1.01:

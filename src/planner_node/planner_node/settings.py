@@ -328,6 +328,22 @@ def replace(settings: PlannerSettings, group_name: str, **changes) -> PlannerSet
     return dataclasses.replace(settings, **{group_name: dataclasses.replace(getattr(settings, group_name), **changes)})
 
 
+def parse_overrides(items: list[str], where: str = "--set") -> dict:
+    """Command-line ``GROUP.FIELD=VALUE`` strings -> {"GROUP.FIELD": value} (values read as YAML
+    scalars) for :func:`apply_overrides`; SpecError ``<where>`` for an item of another form."""
+    import yaml
+
+    from climb_core.errors import SpecError
+
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or "." not in key:
+            raise SpecError(where, f"expects GROUP.FIELD=VALUE, got {item!r}")
+        out[key.strip()] = yaml.safe_load(value)
+    return out
+
+
 def apply_overrides(settings: PlannerSettings, overrides: dict, where: str = "planner_overrides") -> PlannerSettings:
     """``settings`` with dotted ``group.field`` values replaced, each validated like the YAML
     loader does (SpecError naming ``<where>.<group.field>`` for an unknown field or a bad value)."""
