@@ -152,9 +152,12 @@ def run(args: argparse.Namespace):
     from planner_node import plan_io
     from planner_node.climb_planner import plan_climb
     from planner_node.primitives import load_library
-    from planner_node.settings import apply_overrides, choose_strategy, load_settings, parse_overrides
+    from planner_node.settings import (apply_overrides, choose_strategy, load_settings, parse_overrides,
+                                       scenario_settings)
 
-    settings = apply_overrides(load_settings(), parse_overrides(args.set), where="--set")
+    # the scenario file's own planner_overrides, then --set on top
+    settings = scenario_settings(load_settings(), load_scenario(args.scenario))
+    settings = apply_overrides(settings, parse_overrides(args.set), where="--set")
     if not args.strategy:  # chosen for the scenario (a scene, stairs: search), the reason in the summary
         chosen, args.strategy_reason = choose_strategy(load_scenario(args.scenario), settings)
         args.strategy = "search" if chosen == "search" else settings.planning.strategy

@@ -152,6 +152,13 @@ RULES = [
     ("null_ladder", "ladder", None, "ladder", "required"),
     ("missing_obstacle_position", "ladder.obstacles[0].position", DELETE, "ladder.obstacles[0].position",
      "required"),
+    # the project's planner_overrides: dotted names to scalars (the planner checks names and values)
+    ("overrides_list", "planner_overrides", ["timing.max_joint_speed"], "planner_overrides", "must be a mapping"),
+    ("overrides_undotted", "planner_overrides", {"timeout_s": 10.0}, "planner_overrides.timeout_s", "group.field"),
+    ("overrides_nested_value", "planner_overrides", {"timing.max_joint_speed": [0.2]},
+     "planner_overrides.timing.max_joint_speed", "a number, a bool or a string"),
+    ("overrides_nan", "planner_overrides", {"timing.max_joint_speed": float("nan")},
+     "planner_overrides.timing.max_joint_speed", "finite"),
     # perturbation references
     ("offset_rung_above_top", "perturbation.rung_offsets[0].rung", 9, "perturbation.rung_offsets[0].rung",
      "n_rungs = 8"),

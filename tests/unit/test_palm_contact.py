@@ -248,3 +248,23 @@ def test_one_surface_per_kind_and_limb_and_feet_only_soles():
     with pytest.raises(SpecError) as err:
         parse_robot_config(data)
     assert err.value.field == "limbs.left_hand.extra_surfaces"
+
+
+def test_the_zone_rule_measures_a_palm_hold_from_the_palm(g1, passage, palm_push):
+    """A hand landing on / leaving the block with its back may touch the block near the hold
+    (planner_node.adapt.zone_exclusions): the distance is the palm surface's to where the hold puts
+    it, not the grasp surface's (6 cm away on G1's Dex3: the landing configuration's wrist then
+    counted as a collision in verify_plan, -5.5 mm on narrow_passage's plan)."""
+    from planner_node.adapt import AdaptContext, zone_exclusions
+
+    res, _ = palm_push
+    palm = res.holds["right_hand"]
+    T_palm = g1.T_world_surface("right_hand", res.q, surface="right_hand_back")
+    T_grasp = g1.T_world_surface("right_hand", res.q)
+    assert np.allclose(T_grasp, g1.T_world_surface("right_hand", res.q, surface="right_grasp"))
+    assert np.linalg.norm(T_palm[:3, 3] - T_grasp[:3, 3]) > 0.05
+    ctx = AdaptContext(g1, passage, None, load_settings(), feasibility.load_config())
+    assert np.linalg.norm(T_palm[:3, 3] - ctx.hold_origin(palm)) < 2e-3
+    assert zone_exclusions(ctx, res.q, "right_hand", [palm]) == [("right_hand", "palm_block")]
+    with pytest.raises(ValueError, match="no contact surface"):
+        g1.T_world_surface("right_hand", res.q, surface="left_sole")

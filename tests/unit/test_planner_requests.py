@@ -78,3 +78,29 @@ def test_contact_plans_changing_two_holds_at_once_are_rejected(one_cycle):
     with pytest.raises(SpecError) as err:
         contact_plan_steps(load_library("g1", "forward"), cp)
     assert err.value.field == "contact_plan.stances[1]"
+
+
+def test_a_scenarios_planner_overrides_are_planned_with_and_a_bad_one_is_named():
+    """config/scenes/narrow_passage.yaml carries its planner settings (``planner_overrides``): every
+    planning path (the graph's nodes through pipeline.load_problem, plan.py, the in-process climb)
+    plans the scene with them; an unknown setting or a bad value names the field."""
+    import yaml
+
+    from planner_node import pipeline
+    from planner_node.settings import scenario_settings
+
+    base = load_settings()
+    problem = pipeline.load_problem(pipeline.PlanRequest(id="t", robot="g1", scenario="narrow_passage", rungs=1), base)
+    s = problem.settings
+    assert (s.timing.max_joint_speed, s.contact_search.hand_release_min_contacts, s.planning.timeout_s) == (0.2, 2, 1500.0)
+    assert base.timing.max_joint_speed == 0.4 and base.contact_search.hand_release_min_contacts == 1
+    assert scenario_settings(base, load_scenario("default")) is base  # a ladder without any: unchanged
+    doc = load_scenario("narrow_passage").to_dict()
+    for overrides, field in (({"timing.max_joint_sped": 0.2}, "scenario.planner_overrides.timing.max_joint_sped"),
+                             ({"timing.max_joint_speed": -1.0}, "scenario.planner_overrides.timing.max_joint_speed"),
+                             ({"contact_search.repair_rounds": "many"},
+                              "scenario.planner_overrides.contact_search.repair_rounds")):
+        doc["planner_overrides"] = overrides
+        with pytest.raises(SpecError) as err:
+            pipeline.load_problem(pipeline.PlanRequest(id="t", robot="g1", scenario=yaml.safe_dump(doc), rungs=1), base)
+        assert err.value.field == field, (overrides, err.value)

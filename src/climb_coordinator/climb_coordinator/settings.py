@@ -97,14 +97,8 @@ def load_climb_settings(path: str | pathlib.Path | None = None) -> ClimbSettings
 
 
 def apply_planner_overrides(settings, overrides: dict):
-    """planner_node settings with dotted ``section.field`` values replaced (SpecError names an
-    unknown field)."""
-    import dataclasses
+    """planner_node settings with dotted ``section.field`` values replaced, each checked like the
+    planner's YAML (SpecError ``climb.planner_overrides.<key>`` names an unknown field or a bad value)."""
+    from planner_node.settings import apply_overrides
 
-    for key, value in overrides.items():
-        section, _, name = str(key).partition(".")
-        block = getattr(settings, section, None)
-        if block is None or not dataclasses.is_dataclass(block) or not hasattr(block, name):
-            raise SpecError(f"climb.planner_overrides.{key}", "unknown planner setting")
-        settings = dataclasses.replace(settings, **{section: dataclasses.replace(block, **{name: value})})
-    return settings
+    return apply_overrides(settings, overrides, where="climb.planner_overrides")

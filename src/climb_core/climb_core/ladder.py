@@ -22,6 +22,7 @@ allowed by the spec ("the project may add fields").
 | field                                  | default                   | unit | rule                       |
 | -------------------------------------- | ------------------------- | ---- | -------------------------- |
 | name (+), description (+)              | "" (name: see load)       |      | string                     |
+| planner_overrides (+)                  | {} (none)                 |      | mapping GROUP.FIELD -> number, bool or string: planner settings this scenario plans with (names and values checked by planner_node.settings) |
 | ladder                                 | none; a ladder or a scene is required |  | mapping           |
 | scene                                  | none (scene.py has its own table) |  | mapping                |
 | ladder.type                            | regular                   |      | regular, vertical, a_frame, ship, stairs |
@@ -83,6 +84,7 @@ whose ``rule`` says which rule it broke. The first violation found is reported.
 """
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import math
 import numbers
@@ -263,6 +265,7 @@ SCHEMA = Block({
         })),
     }, default=None),  # a scenario needs a ladder or a scene (parse_scenario)
     "scene": Custom(lambda value, path: value, default=None),  # validated by scene.parse_scene
+    "planner_overrides": Custom(lambda value, path: _planner_overrides(value, path), default=()),
     "perturbation": Block({
         "rung_offsets": ListOf(Block({
             "rung": Num(_REQUIRED, Range(1, None), integer=True),
@@ -598,6 +601,9 @@ class Scenario:
     perturbation: PerturbationSpec = field(default_factory=PerturbationSpec)
     description: str = ""
     scene: SceneSpec | None = None  # scene.py
+    #: (("group.field", value), ...): planner settings this scenario is planned with (the scene's
+    #: tuning, measured and argued in its file); the planner applies and checks them
+    planner_overrides: tuple[tuple[str, Any], ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         return scenario_to_dict(self)
@@ -638,8 +644,26 @@ def parse_scenario(data: Any, name: str = "") -> Scenario:
         from .scene import parse_scene
 
         scene = parse_scene(doc["scene"], scenario.ladder)
-        scenario = Scenario(scenario.name, scenario.ladder, scenario.perturbation, scenario.description, scene)
+        scenario = dataclasses.replace(scenario, scene=scene)
     return scenario
+
+
+_OVERRIDE_KEY = re.compile(r"^[a-z_][a-z0-9_]*\.[a-z_][a-z0-9_]*$")
+
+
+def _planner_overrides(value: Any, path: str) -> tuple[tuple[str, Any], ...]:
+    """``planner_overrides``: a mapping of dotted ``group.field`` names to scalars (the planner
+    checks that each names a setting and that the value is valid for it)."""
+    if not isinstance(value, dict):
+        raise SpecError(path, f"must be a mapping of planner settings (group.field: value), got {type(value).__name__}")
+    out = []
+    for key, v in value.items():
+        if not isinstance(key, str) or not _OVERRIDE_KEY.match(key):
+            raise SpecError(_key_path(path, key), "must be a dotted planner setting name group.field")
+        if isinstance(v, (dict, list)) or v is None:
+            raise SpecError(f"{path}.{key}", f"must be a number, a bool or a string, got {v!r}"[:200])
+        out.append((key, v))
+    return tuple(out)
 
 
 def _unit_direction(v, path: str) -> tuple[float, ...]:
@@ -662,7 +686,8 @@ def _build(doc: dict, name: str) -> Scenario:
                     for i, d in enumerate(pert["drops"])),
     )
     ladder = None if doc["ladder"] is None else _build_ladder(doc["ladder"])
-    return Scenario(name=name, ladder=ladder, perturbation=perturbation, description=doc["description"])
+    return Scenario(name=name, ladder=ladder, perturbation=perturbation, description=doc["description"],
+                    planner_overrides=doc["planner_overrides"])
 
 
 def _build_ladder(lad: dict) -> LadderSpec:
@@ -792,6 +817,8 @@ def scenario_to_dict(scenario: Scenario) -> dict[str, Any]:
         from .scene import scene_to_dict
 
         doc["scene"] = scene_to_dict(scenario.scene)
+    if scenario.planner_overrides:
+        doc["planner_overrides"] = dict(scenario.planner_overrides)
     doc["perturbation"] = {
         "rung_offsets": [{"rung": o.rung, "dx": o.dx, "dz": o.dz} for o in pert.rung_offsets],
         "rails_dy": pert.rails_dy,

@@ -265,14 +265,25 @@ class RobotModel:
         """(nv - 6,) URDF effort limits of the whole-body joints, Pinocchio order [N m]."""
         return np.array(self.model.effortLimit[6:], dtype=float)
 
-    def T_world_surface(self, limb: str, q: np.ndarray, data: "pin.Data | None" = None) -> np.ndarray:
-        """4x4 pose of the limb's contact surface frame in the world at configuration q (without
-        ``data``: a scratch pin.Data of this thread, createData costing ~0.3 ms for G1)."""
+    def T_world_surface(self, limb: str, q: np.ndarray, data: "pin.Data | None" = None,
+                        surface: str | None = None) -> np.ndarray:
+        """4x4 pose of the limb's contact surface frame in the world at configuration q: its primary
+        surface (a sole, a grasp), or the named one of its surfaces (a hand's ``right_palm``: a
+        hold's ``robot_surface``). Without ``data``: a scratch pin.Data of this thread (createData
+        costs ~0.3 ms for G1)."""
         import pinocchio as pin
 
         if data is None:
             data = self._scratch_data()
-        surface = self.config.limbs[limb].surface
+        limb_config = self.config.limbs[limb]
+        if surface is None or surface == limb_config.surface.name:
+            surface = limb_config.surface
+        else:
+            try:
+                surface = limb_config.surfaces[surface]
+            except KeyError:
+                raise ValueError(f"limb {limb!r} has no contact surface {surface!r} "
+                                 f"(it has {', '.join(limb_config.surfaces)})") from None
         fid = self.frame_id(surface.frame)
         pin.framesForwardKinematics(self.model, data, q)
         return data.oMf[fid].homogeneous @ surface.T_frame_surface

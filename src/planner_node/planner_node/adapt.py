@@ -173,16 +173,17 @@ def failure_name(res: feasibility.FeasibilityResult) -> str:
 
 
 def zone_exclusions(ctx: AdaptContext, q: np.ndarray, limb: str, holds: Sequence[Hold]) -> list[tuple[str, str]]:
-    """(limb, surface) pairs allowed to touch at q: the moving limb near the hold it leaves / reaches."""
+    """(limb, surface) pairs allowed to touch at q: the moving limb near the hold it leaves / reaches
+    (the distance of the hold's own robot surface - a hand's palm or grasp - to where the hold puts it)."""
     if not limb:
         return []
     p = ctx.settings.interpolation
     radius = p.exclusion_distance_hand if limb in HANDS else p.exclusion_distance_foot
-    T = ctx.robot.T_world_surface(limb, q)
     out = []
     for h in holds:
         if h is None or h.limb != limb:
             continue
+        T = ctx.robot.T_world_surface(limb, q, surface=h.robot_surface)
         if float(np.linalg.norm(T[:3, 3] - ctx.hold_origin(h))) <= radius:
             out.append((limb, h.env_surface))
     return out

@@ -429,6 +429,14 @@ def scene_settings(settings: PlannerSettings, overrides_file: str | pathlib.Path
                            where=f"{overrides_file or 'planner_overrides'}:climb.scene_planner_overrides")
 
 
+def scenario_settings(settings: PlannerSettings, scenario: Any) -> PlannerSettings:
+    """``settings`` with the scenario's own ``planner_overrides`` applied (a scene file's tuning,
+    argued in the file: narrow_passage's sole margins and speeds); SpecError
+    ``scenario.planner_overrides.<group.field>`` for an unknown setting or a bad value."""
+    overrides = dict(getattr(scenario, "planner_overrides", ()) or ())
+    return apply_overrides(settings, overrides, where="scenario.planner_overrides") if overrides else settings
+
+
 def climb_settings(overrides_file: str | pathlib.Path = CLIMB_OVERRIDES_FILE,
                    base: PlannerSettings | None = None) -> PlannerSettings:
     """The planner settings the climb plans with: config/planner.yaml (or ``base``) with the
