@@ -227,9 +227,12 @@ def run_search(args: argparse.Namespace, settings):
     request = pipeline.PlanRequest(id="plan.py", robot=robot.config.name, scenario=scenario.name or "custom",
                                    rungs=max(1, args.steps), seed=args.seed, timeout_s=args.timeout, strategy="search")
     problem = pipeline.Problem(request, robot, scenario, env, None, settings, start=start)
+    t0 = time.perf_counter()
     guide = pipeline.guide_path(problem, strategy="search")
     contacts, result, _ = pipeline.search_and_adapt(problem, guide.product)
-    extra: dict = {"strategy": "search", **_reason(args), "guide_path": guide.summary,
+    # the whole pipeline's wall time (the result's own is the last adaptation round's)
+    extra: dict = {"plan_time_s": round(time.perf_counter() - t0, 3), "adaptation_time_s": round(result.plan_time_s, 3),
+                   "strategy": "search", **_reason(args), "guide_path": guide.summary,
                    "contact_search": {k: v for k, v in contacts.summary.items() if k != "moves"},
                    "moves": contacts.summary["moves"]}
     if scenario.scene is not None:

@@ -380,3 +380,25 @@ def test_a_single_support_is_searched_with_the_soles_cop_margin(g1, monkeypatch)
     default = _scene_search(g1, "narrow_passage_step")  # off by default: the IK's own margin
     default._ik(q, [pcik.ContactSpec("left_foot", pcik.REGULAR, hold=lf)], q)
     assert margins == [0.0]
+
+
+def test_a_high_step_is_offered_only_with_a_hand_holding(g1):
+    """``contact_search.step_up_hand_support``: on car_ingress, a free foot standing on the ground
+    is not offered the car's floor (its top 0.45 m up: executed from single support without a hand,
+    G1 fell) while no hand holds a surface; with a hand on the seat back it is; low surfaces always
+    are; off (0) by default."""
+    from climb_core.contact import Stance
+    from planner_node import guide_path as gp
+
+    search = _scene_search(g1, "car_ingress", step_up_hand_support=0.25)
+    env = search.env
+    q = gp.start_configuration(g1, env)
+    left = _flat_hold("left_foot", "ground", *g1.T_world_surface("left_foot", q)[:3, 3])
+    surfaces = [env.surfaces[n] for n in ("ground", "floor", "seat_driver")]
+    kept = search._supported_step(Stance((left,)), "right_foot", q, surfaces)
+    assert [sf.name for sf in kept] == ["ground"] and search.stats.pruned_by_support == 2
+    hand = _flat_hold("right_hand", "seat_back", 1.0, -0.6, 1.3)
+    assert len(search._supported_step(Stance((left, hand)), "right_foot", q, surfaces)) == 3
+    assert len(search._supported_step(Stance((left,)), "right_hand", q, surfaces)) == 3  # hands: no rule
+    assert load_settings().contact_search.step_up_hand_support == 0.0
+    assert len(_scene_search(g1, "car_ingress")._supported_step(Stance((left,)), "right_foot", q, surfaces)) == 3

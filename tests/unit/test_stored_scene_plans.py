@@ -27,7 +27,7 @@ STORED = {
     "narrow_passage_step": (15, "palm_block"),
     "stairs_handrail": (10, None),
     "narrow_passage": (50, "palm_block"),
-#    "car_ingress": (15, None),
+    "car_ingress": (15, None),
 }
 
 

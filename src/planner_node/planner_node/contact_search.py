@@ -21,6 +21,8 @@ other:
 - on a walked ladder (stairs: the caller's ``walked``) the IK pulls the CoM over the held feet and a
   free foot is offered the treads at most ``foot_max_treads_up`` above the other foot's
   (:func:`tread_levels`: one tread at a time);
+- a free foot is offered a surface whose top is more than ``step_up_hand_support`` above its sole
+  only while a hand holds a surface (off by default: a high step with a hand's support);
 - branching: the surfaces of a free limb beyond its reach from its root (hip; an arm: the waist, whose chain holds the shoulder) are
   pruned before any IK call; of the others, the ``max_surfaces_per_limb`` closest to the limb's
   place at the milestone are tried, closest first (0: all of them, the paper's exhaustive
@@ -234,6 +236,7 @@ class SearchStats:
     pruned_by_reach: int = 0
     pruned_by_rank: int = 0
     pruned_by_step: int = 0
+    pruned_by_support: int = 0
     skipped_visited: int = 0
     skipped_banned: int = 0
     time_s: float = 0.0
@@ -249,7 +252,7 @@ class SearchStats:
                 "ik_calls": self.ik_calls, "ik_failures": self.ik_failures,
                 "ik_calls_per_s": round(self.ik_calls_per_s, 2), "ik_time_s": round(self.ik_time_s, 3),
                 "pruned_by_reach": self.pruned_by_reach, "pruned_by_rank": self.pruned_by_rank,
-                "pruned_by_step": self.pruned_by_step,
+                "pruned_by_step": self.pruned_by_step, "pruned_by_support": self.pruned_by_support,
                 "skipped_visited": self.skipped_visited, "skipped_banned": self.skipped_banned,
                 "milestones_reached": self.milestones_reached, "milestones_skipped": list(self.milestones_skipped),
                 "time_s": round(self.time_s, 3)}
@@ -397,6 +400,7 @@ class _Search:
                 else:
                     candidates.append(sf)
             candidates = self._within_a_step(stance, limb, candidates)
+            candidates = self._supported_step(stance, limb, q, candidates)
             # closest to the limb's milestone place first, at most max_surfaces_per_limb of them
             candidates.sort(key=lambda sf: surface_distance(sf, preferred))  # stable: ties in env order
             cap = self.params.max_surfaces_per_limb
@@ -452,6 +456,17 @@ class _Search:
         bound = level + self.params.foot_max_treads_up
         kept = [sf for sf in candidates if self.tread_of.get(sf.name, -1) <= bound]
         self.stats.pruned_by_step += len(candidates) - len(kept)
+        return kept
+
+    def _supported_step(self, stance: Stance, limb: str, q: np.ndarray, candidates: list[Any]) -> list[Any]:
+        """A foot's surfaces whose top is more than ``step_up_hand_support`` above its sole at ``q``
+        are kept only when a hand holds a surface (every surface when the rule is off)."""
+        rise = self.params.step_up_hand_support
+        if rise <= 0.0 or limb_type(limb) != "foot" or any(limb_type(h.limb) == "hand" for h in stance.holds):
+            return candidates
+        sole_z = float(self.robot.T_world_surface(limb, q)[2, 3])
+        kept = [sf for sf in candidates if sf.top_z - sole_z <= rise]
+        self.stats.pruned_by_support += len(candidates) - len(kept)
         return kept
 
     def _banned(self, stance: Stance, child: Stance) -> bool:

@@ -198,6 +198,9 @@ class ContactSearchParams:
     hand_release_min_contacts: int = param(1, unit="-", min=1, description=(
         "a hand's contact is removed only from a set that keeps at least this many (2: a hand's support is "
         "released or moved on two other supports, never onto one foot alone)"))
+    step_up_hand_support: float = param(0.0, unit="m", min=0.0, description=(
+        "a free foot is offered a surface whose top is more than this above its sole only while a hand holds "
+        "a surface (a high step is taken with a hand's support: car_ingress's 0.45 m sill; 0: off)"))
     com_over_feet_weight: float = param(3000.0, unit="1/m^2", min=0.0, description=(
         "on a walked ladder (stairs, ship ladders: guide_path.walk_max_incline_deg), the search's IK's cost of the "
         "CoM's horizontal distance to the held feet's centroid: a hand may let go of a rail without the robot "
