@@ -32,8 +32,9 @@ def test_the_stored_plan_of_the_step_is_executed_to_the_goal_with_the_hand_on_th
 
 
 @pytest.mark.skipif(os.environ.get("CLIMB_SLOW_TESTS") != "1",
-                    reason="plans the scene in the test (45-80 s; once its time limit under load): "
-                           "set CLIMB_SLOW_TESTS=1")
+                    reason="plans the scene in the test; measured 2026-11-29 (twenty-second session): not "
+                           "planned within 300 s (sub-task 9-11, with and without the palm-zone fix; "
+                           "docs/benchmarks.md): set CLIMB_SLOW_TESTS=1")
 def test_the_step_is_planned_whole_body_then_executed(tmp_path):
     import dataclasses
 
