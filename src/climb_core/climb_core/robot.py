@@ -268,7 +268,7 @@ class RobotModel:
     def T_world_surface(self, limb: str, q: np.ndarray, data: "pin.Data | None" = None,
                         surface: str | None = None) -> np.ndarray:
         """4x4 pose of the limb's contact surface frame in the world at configuration q: its primary
-        surface (a sole, a grasp), or the named one of its surfaces (a hand's ``right_palm``: a
+        surface (a sole, a grasp), or the named one of its surfaces (G1's ``right_hand_back``: a
         hold's ``robot_surface``). Without ``data``: a scratch pin.Data of this thread (createData
         costs ~0.3 ms for G1)."""
         import pinocchio as pin
