@@ -156,18 +156,18 @@ def run(args: argparse.Namespace):
                                        scenario_settings)
 
     # the scenario file's own planner_overrides, then --set on top
-    settings = scenario_settings(load_settings(), load_scenario(args.scenario))
+    scenario = load_scenario(args.scenario)
+    settings = scenario_settings(load_settings(), scenario)
     settings = apply_overrides(settings, parse_overrides(args.set), where="--set")
     if not args.strategy:  # chosen for the scenario (a scene, stairs: search), the reason in the summary
-        chosen, args.strategy_reason = choose_strategy(load_scenario(args.scenario), settings)
+        chosen, args.strategy_reason = choose_strategy(scenario, settings)
         args.strategy = "search" if chosen == "search" else settings.planning.strategy
         print(f"strategy {args.strategy}: {args.strategy_reason}", file=sys.stderr)
     if args.strategy == "search":
-        return run_search(args, settings)
+        return run_search(args, settings, scenario)
     if args.strategy:
         settings = dataclasses.replace(settings, planning=dataclasses.replace(settings.planning,
                                                                               strategy=args.strategy))
-    scenario = load_scenario(args.scenario)
     require_search_strategy(scenario, settings.planning.strategy)
     env = build_environment(scenario)
     robot = load_robot(args.robot)
@@ -204,20 +204,18 @@ def run(args: argparse.Namespace):
     return result, extra
 
 
-def run_search(args: argparse.Namespace, settings):
+def run_search(args: argparse.Namespace, settings, scenario):
     """``--strategy search``: guide path -> best-first contact search -> adaptation
     (planner_node.pipeline), from ``--start`` (default: standing at the scenario's start pose);
     the feet end on rung ``--steps`` of a ladder, or the base at a scene's goal."""
     from climb_core import fixtures
     from climb_core.environment import build_environment
     from climb_core.errors import SpecError
-    from climb_core.ladder import load_scenario
     from climb_core.robot import load_robot
     from planner_node import pipeline
 
     if args.descend:
         raise SpecError("descend", "not with strategy search (a searched plan goes to its goal)")
-    scenario = load_scenario(args.scenario)
     env = build_environment(scenario)
     robot = load_robot(args.robot)
     start = None

@@ -198,6 +198,60 @@ def test_retargeted_way_points_keep_their_pose_relative_to_the_actual_holds(g1, 
         assert np.allclose(rel(N_s, T_new[i]), rel(cues.poses[0], cues.poses[i]), atol=2e-3)
 
 
+def test_the_hand_backoff_scale_lengthens_the_back_off_and_keeps_the_release_and_the_approach(g1, env, ctx):
+    from planner_node.settings import apply_overrides
+
+    prim = ctx.library.primitives["place_left_hand"]
+    cues = A.limb_cues(ctx, prim)
+    q_s, q_e = to_world(env, prim.waypoints[0]), to_world(env, prim.waypoints[-1])
+    T_s, T_e = g1.T_world_surface("left_hand", q_s), g1.T_world_surface("left_hand", q_e)
+
+    def backs(poses):  # distance behind the grasps along their normals (z into the rung), blended
+        return np.array([(1 - w) * (T_s[:3, 3] - P[:3, 3]) @ T_s[:3, 2] + w * (T_e[:3, 3] - P[:3, 3]) @ T_e[:3, 2]
+                         for w, P in zip(cues.weights, poses)])
+
+    plain = A.retarget_poses(ctx, prim, q_s, q_e)
+    scaled = apply_overrides(ctx.settings, {"interpolation.hand_backoff_scale": 1.3})
+    # the default ladder (75 deg) is below hand_backoff_min_incline_deg (82): unchanged
+    assert np.allclose(A.retarget_poses(A.AdaptContext(g1, env, ctx.library, scaled), prim, q_s, q_e), plain)
+    wide_ctx = A.AdaptContext(g1, env, ctx.library, apply_overrides(scaled, {"interpolation.hand_backoff_min_incline_deg": 75.0}))
+    assert A.hand_backoff_scale(wide_ctx) == 1.3
+    wide = A.retarget_poses(wide_ctx, prim, q_s, q_e)
+    b0, b1 = backs(plain), backs(wide)
+    assert b0.max() > 0.09  # the design backs the hand off ~10 cm before it travels
+    assert b1 == pytest.approx(np.where(b0 > 0, 1.3 * b0, b0), abs=2e-3)
+    # the ends are the grasps themselves; the orientation of every way-point is unchanged
+    assert np.allclose(wide[0], plain[0]) and np.allclose(wide[-1], plain[-1])
+    for P0, P1 in zip(plain, wide):
+        assert np.allclose(P0[:3, :3], P1[:3, :3])
+    # feet are not hands: unchanged
+    foot = ctx.library.primitives["place_left_foot"]
+    fq_s, fq_e = to_world(env, foot.waypoints[0]), to_world(env, foot.waypoints[-1])
+    assert np.allclose(A.retarget_poses(wide_ctx, foot, fq_s, fq_e), A.retarget_poses(ctx, foot, fq_s, fq_e))
+
+
+def test_a_library_is_parsed_once_per_version_of_its_file(tmp_path):
+    import shutil
+
+    from planner_node import primitives as P
+
+    lib = load_library("g1", "forward")
+    assert load_library("g1", "forward") is lib  # cached
+    assert not lib.primitives["place_left_hand"].waypoints.flags.writeable  # shared: read-only
+    folder = tmp_path / "g1" / "forward"
+    folder.mkdir(parents=True)
+    shutil.copy(lib.path, folder / P.LIBRARY_FILE)
+    a = load_library("g1", "forward", root=tmp_path)
+    assert a is not lib and a.primitives.keys() == lib.primitives.keys()
+    text = (folder / P.LIBRARY_FILE).read_text()
+    (folder / P.LIBRARY_FILE).write_text(text.replace("initial_fixture: standing", "initial_fixture: ladder_4_contacts"))
+    b = load_library("g1", "forward", root=tmp_path)  # the file changed: parsed again
+    assert b is not a and b.initial_fixture == "ladder_4_contacts"
+    with pytest.raises(SpecError) as err:  # the robot check runs on a cached library too
+        load_library("g1", "forward", root=tmp_path, nq=a and 10)
+    assert err.value.field == "primitives.joint_names"
+
+
 def test_projection_with_a_limb_cue_places_the_free_limb_and_keeps_the_contacts(g1, env, ctx):
     st4, q4 = fixtures.get("ladder_4_contacts", g1, env)
     kept = st4.without("right_hand")

@@ -104,3 +104,25 @@ def test_a_scenarios_planner_overrides_are_planned_with_and_a_bad_one_is_named()
         with pytest.raises(SpecError) as err:
             pipeline.load_problem(pipeline.PlanRequest(id="t", robot="g1", scenario=yaml.safe_dump(doc), rungs=1), base)
         assert err.value.field == field, (overrides, err.value)
+
+
+def test_every_caller_orders_the_settings_of_a_scenario_the_same_way():
+    """planner_node.settings.settings_for_scenario (the graph's pipeline and the in-process climb):
+    the caller's settings, then for a walked scenario the scene overrides, the scenario file's own
+    last; a ladder that is not walked keeps the caller's settings."""
+    from planner_node.settings import apply_overrides, read_climb_overrides, settings_for_scenario
+
+    base = load_settings()
+    assert settings_for_scenario(base, load_scenario("default")) is base
+    scene = settings_for_scenario(base, load_scenario("step_up"))  # config/climb.yaml's scene overrides
+    for key, value in read_climb_overrides(key="scene_planner_overrides").items():
+        group, name = key.split(".")
+        assert getattr(getattr(scene, group), name) == value
+    # given overrides replace the file's, and the scenario's own come last (narrow_passage: 0.2 rad/s)
+    caller = apply_overrides(base, {"timing.max_joint_speed": 0.3})
+    s = settings_for_scenario(caller, load_scenario("narrow_passage"),
+                              scene_overrides={"timing.max_joint_speed": 0.35, "pcik.torque_limit_fraction": 0.7})
+    assert (s.timing.max_joint_speed, s.pcik.torque_limit_fraction) == (0.2, 0.7)
+    with pytest.raises(SpecError) as err:
+        settings_for_scenario(base, load_scenario("step_up"), scene_overrides={"timing.nope": 1.0})
+    assert err.value.field.endswith("timing.nope")

@@ -407,7 +407,7 @@ def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
     from climb_core.ladder import load_scenario
     from climb_core.robot import load_robot
     from planner_node.primitives import load_library
-    from planner_node.settings import load_settings, scenario_settings, walked
+    from planner_node.settings import load_settings, settings_for_scenario
 
     req = with_chosen_strategy(req)
     validate(req)
@@ -415,11 +415,8 @@ def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
     scenario = load_scenario(req.ladder)
     env = build_environment(scenario)
     robot = load_robot(req.robot)
-    overrides = dict(cs.planner_overrides)
-    base = load_settings()
-    if walked(scenario, base):  # a scene, stairs: the planner's own torque shares
-        overrides.update(cs.scene_planner_overrides)
-    psettings = scenario_settings(apply_planner_overrides(base, overrides), scenario)  # the scenario's own, last
+    psettings = settings_for_scenario(apply_planner_overrides(load_settings(), cs.planner_overrides), scenario,
+                                      scene_overrides=cs.scene_planner_overrides)
     p = psettings.planning
     if req.strategy == "search":
         posture = req.start_posture or "standing"

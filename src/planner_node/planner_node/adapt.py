@@ -571,7 +571,31 @@ def retarget_poses(ctx: AdaptContext, prim: Primitive, q_s: np.ndarray, q_e: np.
     C_s = pin.SE3(T_s) * P_s.inverse()
     C_e = pin.SE3(ctx.robot.T_world_surface(prim.limb, q_e)) * P_e.inverse()
     d = pin.log6(C_s.inverse() * C_e)
-    return [(C_s * pin.exp6(float(w) * d) * T_WL * pin.SE3(P)).homogeneous for w, P in zip(cues.weights, cues.poses)]
+    out = [(C_s * pin.exp6(float(w) * d) * T_WL * pin.SE3(P)).homogeneous for w, P in zip(cues.weights, cues.poses)]
+    scale = hand_backoff_scale(ctx)
+    if scale != 1.0 and prim.type == "place_hand":
+        # z of a grasp surface points into its rung: a way-point's back-off is its distance behind
+        # the start / target grasp along it, blended by the cue weight like the correction above
+        T_e = ctx.robot.T_world_surface(prim.limb, q_e)
+        n_s, n_e = np.asarray(T_s)[:3, 2], T_e[:3, 2]
+        p_s, p_e = np.asarray(T_s)[:3, 3], T_e[:3, 3]
+        for i in range(1, len(out) - 1):
+            w, p = float(cues.weights[i]), out[i][:3, 3]
+            away = -((1.0 - w) * n_s + w * n_e)
+            back = (1.0 - w) * float((p_s - p) @ n_s) + w * float((p_e - p) @ n_e)
+            if back > 0.0:
+                out[i][:3, 3] = p + (scale - 1.0) * back * away / max(float(np.linalg.norm(away)), 1e-9)
+    return out
+
+
+def hand_backoff_scale(ctx: AdaptContext) -> float:
+    """The hand transfers' back-off scale on this ladder (``interpolation.hand_backoff_scale`` on
+    ladders at least ``hand_backoff_min_incline_deg`` steep, else 1)."""
+    ip = ctx.settings.interpolation
+    ladder = getattr(getattr(ctx.env, "scenario", None), "ladder", None)
+    if ladder is None or float(ladder.inclination_deg) < ip.hand_backoff_min_incline_deg - 1e-9:
+        return 1.0
+    return ip.hand_backoff_scale
 
 
 def pose_deviation(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:

@@ -252,11 +252,9 @@ def load_problem(request: PlanRequest, settings: PlannerSettings) -> Problem:
             env = env.with_surface_offsets(request.surface_offsets)
         except SpecError as exc:
             raise SpecError(f"request.{exc.field}", exc.rule) from None
-    from .settings import scenario_settings, scene_settings, walked
+    from .settings import settings_for_scenario
 
-    if walked(scenario, settings):  # a scene, stairs: config/climb.yaml's scene_planner_overrides
-        settings = scene_settings(settings)
-    settings = scenario_settings(settings, scenario)  # the scenario file's own, last
+    settings = settings_for_scenario(settings, scenario)  # a scene's / stairs' overrides, the file's own
     p = settings.planning
     library = load_library(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
     start = None

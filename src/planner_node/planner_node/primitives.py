@@ -260,14 +260,35 @@ def rank_variants(variants: list["PrimitiveLibrary"], inclination_deg: float, ru
     return sorted(variants, key=dist)
 
 
+#: parsed libraries by (path, modification time, size): a library file parses in ~0.1 s, and a
+#: sweep worker or a planning node plans many times with the same files
+_LIBRARY_CACHE: dict[tuple[str, int, int], PrimitiveLibrary] = {}
+
+
 def load_library(robot: str = "g1", strategy: str = "forward", root: str | pathlib.Path | None = None,
                  nq: int | None = None, path: pathlib.Path | None = None) -> PrimitiveLibrary:
-    """The library of ``robot`` / ``strategy`` (SpecError naming the field when malformed)."""
+    """The library of ``robot`` / ``strategy`` (SpecError naming the field when malformed).
+
+    Parsed once per version of the file (its arrays are read-only: the library is shared)."""
     folder = library_dir(robot, strategy, root)
     path = path or folder / LIBRARY_FILE
     if not path.is_file():
         raise SpecError("primitives", f"no primitive library {path}; produce it with "
                                       f"scripts/make_primitives.py --robot {robot} --strategy {strategy}")
+    st = path.stat()
+    key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
+    lib = _LIBRARY_CACHE.get(key)
+    if lib is None:
+        lib = _parse_library(path)
+        if len(_LIBRARY_CACHE) >= 64:
+            _LIBRARY_CACHE.clear()
+        _LIBRARY_CACHE[key] = lib
+    if nq is not None and nq != 7 + len(lib.joint_names):
+        raise SpecError("primitives.joint_names", f"{path} has {len(lib.joint_names)} joints, the robot {nq - 7}")
+    return lib
+
+
+def _parse_library(path: pathlib.Path) -> PrimitiveLibrary:
     try:
         data = _load_yaml(path.read_text())
     except yaml.YAMLError as exc:
@@ -278,9 +299,10 @@ def load_library(robot: str = "g1", strategy: str = "forward", root: str | pathl
         raise SpecError("primitives.version", f"{path}: version must be {VERSION}")
     joint_names = tuple(str(j) for j in data["joint_names"])
     nq_file = 7 + len(joint_names)
-    if nq is not None and nq != nq_file:
-        raise SpecError("primitives.joint_names", f"{path} has {len(joint_names)} joints, the robot {nq - 7}")
     prims = {name: parse_primitive(name, d, nq_file) for name, d in (data.get("primitives") or {}).items()}
+    for prim in prims.values():
+        for arr in (prim.waypoints, prim.anchor_start, prim.anchor_end, prim.target_centre):
+            arr.setflags(write=False)
     seqs: dict[str, tuple[str, ...]] = {}
     for sname, names in (data.get("sequences") or {}).items():
         for n in names:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import pathlib
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -116,6 +117,13 @@ class InterpolationParams:
         "a way-point's moving limb this far from its re-targeted pose is re-targeted"))
     retarget_angle_tolerance: float = param(0.1, unit="rad", min=0.0, description=(
         "... or rotated this much from it"))
+    hand_backoff_scale: float = param(1.0, unit="-", min=1.0, max=2.0, description=(
+        "hand transfers (re-targeted) on ladders at least hand_backoff_min_incline_deg steep: each "
+        "way-point's distance from the rungs along the palm normals of the grasps left and reached "
+        "(blended by its cue weight) is multiplied by this; the release and the approach stay on their "
+        "straight lines. Room for the open Dex3 thumb, which stands 11.7 cm proud of the palm"))
+    hand_backoff_min_incline_deg: float = param(82.0, unit="deg", min=0.0, max=90.0, description=(
+        "ladders from this inclination up get hand_backoff_scale (a scene without a ladder: never)"))
 
 
 @dataclass(frozen=True)
@@ -438,6 +446,21 @@ def scenario_settings(settings: PlannerSettings, scenario: Any) -> PlannerSettin
     ``scenario.planner_overrides.<group.field>`` for an unknown setting or a bad value."""
     overrides = dict(getattr(scenario, "planner_overrides", ()) or ())
     return apply_overrides(settings, overrides, where="scenario.planner_overrides") if overrides else settings
+
+
+def settings_for_scenario(settings: PlannerSettings, scenario: Any,
+                          scene_overrides: Mapping[str, Any] | None = None) -> PlannerSettings:
+    """The settings a scenario is planned with, in the one order every caller uses: ``settings``
+    (config/planner.yaml with the climb's planner_overrides), then for a walked scenario
+    (:func:`walked`: a scene, stairs) the scene overrides (``scene_overrides``, default
+    config/climb.yaml's ``scene_planner_overrides``), then the scenario file's own
+    ``planner_overrides`` (:func:`scenario_settings`), last."""
+    if walked(scenario, settings):
+        if scene_overrides is None:
+            settings = scene_settings(settings)
+        else:
+            settings = apply_overrides(settings, dict(scene_overrides), where="climb.scene_planner_overrides")
+    return scenario_settings(settings, scenario)
 
 
 def climb_settings(overrides_file: str | pathlib.Path = CLIMB_OVERRIDES_FILE,
