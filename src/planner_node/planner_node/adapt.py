@@ -553,13 +553,14 @@ def limb_cues(ctx: AdaptContext, prim: Primitive) -> LimbCues | None:
 
 
 def retarget_poses(ctx: AdaptContext, prim: Primitive, q_s: np.ndarray, q_e: np.ndarray,
-                   start_hold: Hold | None = None) -> list[np.ndarray] | None:
+                   start_hold: Hold | None = None, attempt: int = 0) -> list[np.ndarray] | None:
     """World poses [4x4] of the moving limb at each way-point with the design cues' meaning kept
     on this ladder: the designed pose relative to the limb's start pose (weight 0) or actual end
     pose (weight 1), the rigid correction blended on the Lie group in between. A grasp left
     (``start_hold``) counts from its nominal pose, as the design did: a grasp the IK rolled about
     its rung turns back about it within the release zone before backing off along the palm
-    normal (the fingers and the thumb then clear the rungs as designed)."""
+    normal (the fingers and the thumb then clear the rungs as designed). A hand's back-off is
+    lengthened on steep ladders, on odd attempts (:func:`hand_backoff_scale`)."""
     cues = limb_cues(ctx, prim)
     if cues is None:
         return None
@@ -572,7 +573,7 @@ def retarget_poses(ctx: AdaptContext, prim: Primitive, q_s: np.ndarray, q_e: np.
     C_e = pin.SE3(ctx.robot.T_world_surface(prim.limb, q_e)) * P_e.inverse()
     d = pin.log6(C_s.inverse() * C_e)
     out = [(C_s * pin.exp6(float(w) * d) * T_WL * pin.SE3(P)).homogeneous for w, P in zip(cues.weights, cues.poses)]
-    scale = hand_backoff_scale(ctx)
+    scale = hand_backoff_scale(ctx, attempt)
     if scale != 1.0 and prim.type == "place_hand":
         # z of a grasp surface points into its rung: a way-point's back-off is its distance behind
         # the start / target grasp along it, blended by the cue weight like the correction above
@@ -588,12 +589,16 @@ def retarget_poses(ctx: AdaptContext, prim: Primitive, q_s: np.ndarray, q_e: np.
     return out
 
 
-def hand_backoff_scale(ctx: AdaptContext) -> float:
-    """The hand transfers' back-off scale on this ladder (``interpolation.hand_backoff_scale`` on
-    ladders at least ``hand_backoff_min_incline_deg`` steep, else 1)."""
+def hand_backoff_scale(ctx: AdaptContext, attempt: int) -> float:
+    """The back-off scale of a hand transfer's ``attempt`` (of one library) on this ladder:
+    ``interpolation.hand_backoff_scale`` for the odd attempts on ladders at least
+    ``hand_backoff_min_incline_deg`` steep, else 1. Each library's seed attempt keeps the design's
+    back-off: on the grid's 82-90 deg ladders the longer one planned some that the design's did
+    not and lost others that it plans (docs/planner.md), so both are tried."""
     ip = ctx.settings.interpolation
     ladder = getattr(getattr(ctx.env, "scenario", None), "ladder", None)
-    if ladder is None or float(ladder.inclination_deg) < ip.hand_backoff_min_incline_deg - 1e-9:
+    if (ladder is None or attempt % 2 == 0
+            or float(ladder.inclination_deg) < ip.hand_backoff_min_incline_deg - 1e-9):
         return 1.0
     return ip.hand_backoff_scale
 
@@ -812,7 +817,7 @@ def _adapt_limb(ctx: AdaptContext, prim: Primitive, state: ClimbState, attempt: 
     ip = ctx.settings.interpolation
     # the design cues' Cartesian meaning on this ladder (the joint-space transform bends it)
     wanted = ip.retarget_mount if prim.type == "mount" else ip.retarget_hands if limb in HANDS else ip.retarget_feet
-    cue_poses = retarget_poses(ctx, prim, q_s, q_e, old) if wanted else None
+    cue_poses = retarget_poses(ctx, prim, q_s, q_e, old, attempt) if wanted else None
     milestones = [q_s]
     for i, q_i in enumerate(moved[1:-1], start=1):
         if attempt > 0:  # later attempts also explore around the primitive's way-points
