@@ -2,7 +2,7 @@
 
 The grid's 82 deg / 21 cm ladder (../shared/bench/ladder_grid.yaml's base) stopped at a hand
 transfer on `collision:left_hand_thumb_1_link_0|rung_4` (docs/sweep/g1_forward_full_t120.csv):
-the open Dex3 thumb stands 11.7 cm proud of the palm face. It plans with the re-targeted hand
+the open Dex3 thumb stands 9.7 cm proud of the palm face. It plans with the re-targeted hand
 transfers (their release undoes the grasp's roll first) and, from 82 deg, the longer back-off of
 every second attempt (`interpolation.hand_backoff_scale`, docs/planner.md). The plan is cached
 under .cache/planner/ keyed by the sources and configuration; the checks always run.

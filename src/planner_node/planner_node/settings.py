@@ -121,7 +121,7 @@ class InterpolationParams:
         "hand transfers (re-targeted) on ladders at least hand_backoff_min_incline_deg steep: each "
         "way-point's distance from the rungs along the palm normals of the grasps left and reached "
         "(blended by its cue weight) is multiplied by this; the release and the approach stay on their "
-        "straight lines. Room for the open Dex3 thumb, which stands 11.7 cm proud of the palm"))
+        "straight lines. Room for the open Dex3 thumb, which stands 9.7 cm proud of the palm face"))
     hand_backoff_min_incline_deg: float = param(82.0, unit="deg", min=0.0, max=90.0, description=(
         "ladders from this inclination up get hand_backoff_scale (a scene without a ladder: never)"))
 
