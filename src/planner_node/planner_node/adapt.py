@@ -569,15 +569,15 @@ def retarget_poses(ctx: AdaptContext, prim: Primitive, q_s: np.ndarray, q_e: np.
     P_e = T_WL * pin.SE3(cues.poses[-1])
     T_s = (nominal_grasp_pose(ctx, start_hold, q_s) if start_hold is not None and start_hold.bilateral
            else ctx.robot.T_world_surface(prim.limb, q_s))
+    T_e = ctx.robot.T_world_surface(prim.limb, q_e)
     C_s = pin.SE3(T_s) * P_s.inverse()
-    C_e = pin.SE3(ctx.robot.T_world_surface(prim.limb, q_e)) * P_e.inverse()
+    C_e = pin.SE3(T_e) * P_e.inverse()
     d = pin.log6(C_s.inverse() * C_e)
     out = [(C_s * pin.exp6(float(w) * d) * T_WL * pin.SE3(P)).homogeneous for w, P in zip(cues.weights, cues.poses)]
     scale = hand_backoff_scale(ctx, attempt)
     if scale != 1.0 and prim.type == "place_hand":
         # z of a grasp surface points into its rung: a way-point's back-off is its distance behind
         # the start / target grasp along it, blended by the cue weight like the correction above
-        T_e = ctx.robot.T_world_surface(prim.limb, q_e)
         n_s, n_e = np.asarray(T_s)[:3, 2], T_e[:3, 2]
         p_s, p_e = np.asarray(T_s)[:3, 3], T_e[:3, 3]
         for i in range(1, len(out) - 1):
