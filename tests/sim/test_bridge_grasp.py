@@ -188,3 +188,23 @@ def test_the_grip_strength_bounds_the_norm_of_a_diagonal_grasp_load(backend):
 
     state, rows, slips = _hang_by_one_hand_tilted(backend, 1.3 * weight)
     assert not slips and state.grasps["left_hand"] == "rung_1"
+
+
+def _finger_angles(backend) -> dict[str, float]:
+    p = backend.p
+    return {name: p.getJointState(backend.body, backend.joint_index[name], physicsClientId=backend.client)[0]
+            for name in backend.finger_names}
+
+
+def test_the_open_hand_is_the_configured_locked_posture_and_the_hand_closes_around_the_rung(backend):
+    """The fingers start and re-open at ``locked_posture`` (where the planner's model holds them)
+    and close toward their far limits, the thumbs round the rung."""
+    ctl, history = hang(backend, grip_factor=2.0, ticks=60)  # both hands closed on rung 1
+    posture = backend.robot.config.locked_posture
+    closed = _finger_angles(backend)
+    assert closed["left_hand_thumb_1_joint"] > 0.3 and closed["right_hand_thumb_1_joint"] < -0.3  # wrapped round
+    state = backend.reset(ResetRequest(robot="g1", ladder=HIGH_BAR, q=hanging_configuration(load_robot("g1"))))
+    opened = _finger_angles(backend)
+    assert opened == pytest.approx(posture, abs=1e-9)
+    backend.step(ctl(state))  # the open hand's servo holds that posture
+    assert dict(zip(backend.finger_names, backend.finger_goal)) == pytest.approx(posture, abs=1e-12)

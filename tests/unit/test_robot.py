@@ -310,6 +310,9 @@ def _set(data: dict, dotted: str, value) -> None:
     ("base_height", float("nan"), "base_height"),
     ("urdf", "g1_description/urdf/nope.urdf", "urdf"),
     ("locked_joints", ["left_hand_thumb_0_joint", "not_a_joint"], "locked_joints[1]"),
+    ("locked_posture", {"left_hand_thumb_1_joint": -1.0}, "locked_posture.left_hand_thumb_1_joint"),  # outside limits
+    ("locked_posture", {"left_knee_joint": 0.1}, "locked_posture.left_knee_joint"),  # not a locked joint
+    ("locked_posture", {"left_hand_thumb_2_joint": "open"}, "locked_posture.left_hand_thumb_2_joint"),
     ("reference_posture.left_knee_joint", 3.5, "reference_posture.left_knee_joint"),   # outside limits
     ("reference_posture.left_hand_index_0_joint", 0.1, "reference_posture.left_hand_index_0_joint"),
     ("limbs.left_foot.frame", "left_foot_link", "limbs.left_foot.frame"),
@@ -336,6 +339,60 @@ def test_bad_config_raises_spec_error_naming_the_field(path, value, field):
     with pytest.raises(SpecError) as err:
         parse_robot_config(data)
     assert err.value.field == field, str(err.value)
+
+
+SWUNG_THUMBS = {"left_hand_thumb_1_joint": -0.6, "right_hand_thumb_1_joint": 0.6}  # [rad] thumb_1 at its stop
+
+
+def test_locked_posture_defaults_to_zero_and_needs_a_source_when_set():
+    data = _g1_yaml()
+    cfg = parse_robot_config(data)
+    assert set(cfg.locked_posture) == set(cfg.locked_joints)
+    assert all(v == 0.0 for v in cfg.locked_posture.values())  # every Dex3 joint's range holds 0
+    data["locked_posture"] = dict(SWUNG_THUMBS)
+    with pytest.raises(SpecError) as err:
+        parse_robot_config(data)
+    assert err.value.field == "sources.locked_posture"
+    data["sources"]["locked_posture"] = "a test"
+    cfg = parse_robot_config(data)
+    assert cfg.locked_posture["left_hand_thumb_1_joint"] == -0.6 and cfg.locked_posture["left_hand_thumb_2_joint"] == 0.0
+
+
+def _thumb_reach_past_the_palm_face(robot: RobotModel, q: np.ndarray) -> float:
+    """[m] farthest point of the left thumb's tip hull past the palm face (y = -0.0204, normal -y)."""
+    data, gdata = robot.model.createData(), pin.GeometryData(robot.collision_model)
+    pin.forwardKinematics(robot.model, data, q)
+    pin.updateFramePlacements(robot.model, data)
+    pin.updateGeometryPlacements(robot.model, data, robot.collision_model, gdata)
+    gid = robot.collision_model.getGeometryId("left_hand_thumb_2_link_0")
+    M = data.oMf[robot.model.getFrameId("left_hand_palm_link")].inverse() * gdata.oMg[gid]
+    points = np.asarray(robot.collision_model.geometryObjects[gid].geometry.points())
+    return float((-(points @ M.rotation.T + M.translation)[:, 1]).max() - 0.0204)
+
+
+def test_the_whole_body_model_holds_the_locked_joints_at_the_locked_posture(g1):
+    """The reduced model's thumb hull is where the full model puts it at ``locked_posture``: at the
+    URDF zero 97 mm past the palm face, swung back to thumb_1's stop 78 mm."""
+    import dataclasses
+
+    swung = RobotModel(dataclasses.replace(g1.config, locked_posture={**g1.config.locked_posture, **SWUNG_THUMBS}))
+    full, full_geom = g1.full_model, g1.full_collision_model
+    for robot in (g1, swung):
+        q_full = pin.neutral(full)
+        for name, value in robot.config.locked_posture.items():
+            q_full[full.joints[full.getJointId(name)].idx_q] = value
+        data_full, gdata_full = full.createData(), pin.GeometryData(full_geom)
+        pin.forwardKinematics(full, data_full, q_full)
+        pin.updateGeometryPlacements(full, data_full, full_geom, gdata_full)
+        q = pin.neutral(robot.model)
+        data, gdata = robot.model.createData(), pin.GeometryData(robot.collision_model)
+        pin.forwardKinematics(robot.model, data, q)
+        pin.updateGeometryPlacements(robot.model, data, robot.collision_model, gdata)
+        name = "left_hand_thumb_2_link_0"
+        assert np.allclose(gdata_full.oMg[full_geom.getGeometryId(name)].homogeneous,
+                           gdata.oMg[robot.collision_model.getGeometryId(name)].homogeneous, atol=1e-9)
+    assert _thumb_reach_past_the_palm_face(g1, pin.neutral(g1.model)) == pytest.approx(0.097, abs=0.002)
+    assert _thumb_reach_past_the_palm_face(swung, pin.neutral(swung.model)) == pytest.approx(0.078, abs=0.002)
 
 
 def test_missing_limb_is_named():

@@ -108,6 +108,8 @@ class RobotModel:
 
         q_lock = np.clip(pin.neutral(full), full.lowerPositionLimit, full.upperPositionLimit)
         locked_ids = [full.getJointId(name) for name in config.locked_joints]
+        for name, jid in zip(config.locked_joints, locked_ids):
+            q_lock[full.joints[jid].idx_q] = config.locked_posture[name]
         self.model, self.collision_model = pin.buildReducedModel(full, geom, locked_ids, q_lock)
         self.data = self.model.createData()
         self.joint_names: list[str] = list(self.model.names[2:])

@@ -203,6 +203,9 @@ class RobotConfig:
     ft_sensors: dict[str, str]  # sensor name -> URDF joint
     ft_ranges: dict[str, tuple[float, float]]  # sensor name -> (force [N], torque [N m]) measuring range
     locked_joints: tuple[str, ...]
+    #: locked joint -> its position [rad] in the whole-body model and the bridge's open hand
+    #: (every locked joint listed; the config's ``locked_posture``, 0 clipped to the limits otherwise)
+    locked_posture: dict[str, float]
     reference_posture: dict[str, float]  # whole-body joint -> [rad] (every whole-body joint listed)
     base_height: float  # [m]
     grip_strength: float  # [N]
@@ -348,7 +351,7 @@ def _expand_patterns(entries: dict, joints: tuple[str, ...], path: str) -> list[
 # --------------------------------------------------------------------------------------------
 # Config parsing
 # --------------------------------------------------------------------------------------------
-_TOP_KEYS = ("name", "description", "urdf", "package_dirs", "locked_joints", "reference_posture",
+_TOP_KEYS = ("name", "description", "urdf", "package_dirs", "locked_joints", "locked_posture", "reference_posture",
              "base_height", "grip_strength", "capture_range", "limbs", "ft_sensors", "ft_ranges", "pwm",
              "motor", "collision", "sim", "sources")
 
@@ -380,7 +383,7 @@ def load_robot_config(name_or_path: str | os.PathLike = "g1") -> RobotConfig:
 def parse_robot_config(data: Any, config_path: pathlib.Path | None = None) -> RobotConfig:
     """Validate a robot config mapping (the YAML's content); raises SpecError(field, rule)."""
     _mapping(data, "", _TOP_KEYS, required=tuple(k for k in _TOP_KEYS
-                                                  if k not in ("description", "package_dirs")))
+                                                  if k not in ("description", "package_dirs", "locked_posture")))
     name = _string(data["name"], "name")
 
     urdf_text = _string(data["urdf"], "urdf")
@@ -415,6 +418,17 @@ def parse_robot_config(data: Any, config_path: pathlib.Path | None = None) -> Ro
             raise SpecError(f"locked_joints[{i}]", f"{j!r} is not a movable joint of the URDF")
         locked.append(j)
     whole_body = tuple(j for j in movable if j not in locked)
+    lock_raw = _mapping(data.get("locked_posture") or {}, "locked_posture", tuple(locked))
+    locked_posture: dict[str, float] = {}
+    for j in locked:
+        uj = tree.joints[j]
+        if j in lock_raw:
+            value = _number(lock_raw[j], f"locked_posture.{j}")
+            if not (uj.lower - 1e-9 <= value <= uj.upper + 1e-9):
+                raise SpecError(f"locked_posture.{j}", f"{value} rad is outside the URDF limits [{uj.lower}, {uj.upper}]")
+        else:
+            value = min(max(0.0, uj.lower), uj.upper)
+        locked_posture[j] = value
 
     posture_raw = _mapping(data["reference_posture"], "reference_posture")
     posture: dict[str, float] = {}
@@ -510,7 +524,7 @@ def parse_robot_config(data: Any, config_path: pathlib.Path | None = None) -> Ro
 
     # Sources --------------------------------------------------------------------------------
     src = _mapping(data["sources"], "sources")
-    for key in _REQUIRED_SOURCES:
+    for key in _REQUIRED_SOURCES + (("locked_posture",) if data.get("locked_posture") else ()):
         if key not in src:
             raise SpecError(f"sources.{key}", "missing: say where this number comes from")
     sources = {str(k): _string(v, f"sources.{k}") for k, v in src.items()}
@@ -521,7 +535,8 @@ def parse_robot_config(data: Any, config_path: pathlib.Path | None = None) -> Ro
 
     return RobotConfig(
         name=name, urdf_path=urdf_path, package_dirs=tuple(package_dirs), limbs=limbs,
-        ft_sensors=ft_sensors, ft_ranges=ft_ranges, locked_joints=tuple(locked), reference_posture=posture,
+        ft_sensors=ft_sensors, ft_ranges=ft_ranges, locked_joints=tuple(locked),
+        locked_posture=locked_posture, reference_posture=posture,
         base_height=base_height, grip_strength=grip_strength, capture_range=capture_range,
         pwm=pwm, motor=motor, collision=CollisionConfig(tuple(pairs), env_links), sim=sim,
         sources=sources, config_path=config_path, description=description)
