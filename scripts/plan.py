@@ -180,7 +180,8 @@ def run(args: argparse.Namespace):
     planner = plan_climb
     if args.descend:
         from planner_node.descend import up_and_down as planner
-    result = planner(robot, env, args.steps, library=library, settings=settings, start=start,
+    # the strategy's libraries, nearest reference ladder first (library.yaml: the start fixture)
+    result = planner(robot, env, args.steps, settings=settings, start=start,
                      seed=args.seed, timeout_s=args.timeout)
     extra: dict = {"strategy": settings.planning.strategy, **_reason(args)}
     if args.descend and result.success:

@@ -236,22 +236,18 @@ def in_process_plan(rungs: int, seed: int, timeout_s: float, start=None):
     from climb_coordinator.climb import ClimbRequest, plan
     from climb_coordinator.settings import apply_planner_overrides, load_climb_settings
     from planner_node.climb_planner import plan_climb
-    from planner_node.primitives import load_library
     from planner_node.replan import measured_start
     from planner_node.settings import load_settings
 
     robot = load_robot("g1")
     env = build_environment(load_scenario("default"))
     psettings = apply_planner_overrides(load_settings(), load_climb_settings().planner_overrides)
-    p = psettings.planning
-    library = load_library(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
     if start is None:
         req = ClimbRequest(ladder="default", robot="g1", rungs=rungs, seed=seed, plan_timeout_s=timeout_s)
-        return plan(req, robot, env, library, psettings, rungs)
+        return plan(req, robot, env, psettings, rungs)
     q, stance = start
     q0 = measured_start(robot, env, q, stance, psettings)
-    return plan_climb(robot, env, rungs, start=(q0, stance), library=library, settings=psettings, seed=seed,
-                      timeout_s=timeout_s)
+    return plan_climb(robot, env, rungs, start=(q0, stance), settings=psettings, seed=seed, timeout_s=timeout_s)
 
 
 def assert_same_plan(msg, expected) -> None:

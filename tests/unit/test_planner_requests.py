@@ -126,3 +126,46 @@ def test_every_caller_orders_the_settings_of_a_scenario_the_same_way():
     with pytest.raises(SpecError) as err:
         settings_for_scenario(base, load_scenario("step_up"), scene_overrides={"timing.nope": 1.0})
     assert err.value.field.endswith("timing.nope")
+
+
+def test_every_planning_caller_ranks_the_library_variants_like_the_sweep(tmp_path):
+    """A grid ladder at a variant's reference (84 deg / 32 cm): the in-process climb
+    (climb_coordinator.climb.plan), the graph's adaptation (pipeline.adapt) and scripts/plan.py
+    plan with the nearest library first, every variant after it, as the sweep does (they passed
+    the main library alone before 2026-11-30, and planned that ladder in 16.5 s where the sweep took
+    4.2 s). One step, a short time limit: only the libraries used are compared."""
+    import importlib.util
+    import pathlib
+
+    import yaml
+
+    from climb_coordinator.climb import ClimbRequest, plan
+    from climb_core.ladder import parse_scenario
+    from planner_node import pipeline
+    from planner_node.primitives import load_variants
+
+    ladder = {"ladder": {"type": "regular", "inclination_deg": 84.0, "rung_spacing": 0.32, "n_rungs": 8,
+                         "first_rung_height": 0.25, "rung_width": 0.5, "rung": {"shape": "circle", "diameter": 0.04},
+                         "stringer": {"width": 0.08, "depth": 0.03}, "rails": [], "friction": 0.25,
+                         "pose": {"x": 0.45, "y": 0.0, "yaw_deg": 0.0}}}
+    settings = load_settings()
+    robot = load_robot("g1")
+    n_variants = len(load_variants("g1", settings.planning.strategy, settings.planning.primitives_dir))
+    assert n_variants >= 2
+    req = ClimbRequest(ladder="default", robot="g1", rungs=1, seed=0, plan_timeout_s=2.0)  # plan() reads the last three
+    env = build_environment(parse_scenario(ladder, name="grid_84_0.32"))
+    in_process = plan(req, robot, env, settings, 1)
+    problem = pipeline.load_problem(pipeline.PlanRequest(id="t", robot="g1", scenario=yaml.safe_dump(ladder), rungs=1,
+                                                         timeout_s=2.0), settings)
+    graph, _ = pipeline.adapt(problem)
+    spec_file = tmp_path / "grid_84_0.32.yaml"
+    spec_file.write_text(yaml.safe_dump(ladder))
+    script = importlib.util.spec_from_file_location(
+        "plan_script", pathlib.Path(__file__).resolve().parents[2] / "scripts" / "plan.py")
+    plan_py = importlib.util.module_from_spec(script)
+    script.loader.exec_module(plan_py)
+    from_script, _ = plan_py.run(plan_py.build_parser().parse_args(
+        ["--scenario", str(spec_file), "--steps", "1", "--seed", "0", "--timeout", "2"]))
+    for res in (in_process, graph, from_script):
+        refs = [tuple(r) for r in res.stats["library_references"]]
+        assert refs[0] == (84.0, 0.32) and len(refs) == n_variants, refs

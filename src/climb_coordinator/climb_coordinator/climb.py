@@ -85,12 +85,14 @@ def clip_plan_to_limits(plan: WholeBodyPlan, robot, margin: float) -> WholeBodyP
     return replace(plan, transitions=transitions)
 
 
-def plan(req: ClimbRequest, robot, env, library, settings=None, steps: int | None = None):
+def plan(req: ClimbRequest, robot, env, settings=None, steps: int | None = None):
+    """The request's climb planned with the libraries of ``settings.planning.strategy``, nearest
+    reference ladder first (``plan_climb`` ranks them: what the sweep and the planning nodes plan)."""
     from planner_node.climb_planner import plan_climb
     from planner_node.descend import up_and_down
 
     planner = up_and_down if req.descend else plan_climb
-    return planner(robot, env, req.rungs if steps is None else steps, library=library, settings=settings,
+    return planner(robot, env, req.rungs if steps is None else steps, settings=settings,
                    seed=req.seed, timeout_s=req.plan_timeout_s)
 
 
@@ -101,8 +103,8 @@ class LibraryPlanSource:
     """Plan source port: the planner library in this process (first plan from the library's start
     fixture; replans from the measured state projected onto the held stance)."""
 
-    def __init__(self, req: ClimbRequest, robot, env, library, psettings, cs: ClimbSettings):
-        self.req, self.robot, self.env, self.library = req, robot, env, library
+    def __init__(self, req: ClimbRequest, robot, env, psettings, cs: ClimbSettings):
+        self.req, self.robot, self.env = req, robot, env
         self.psettings, self.cs = psettings, cs
 
     def plan(self, steps: int, start=None, surface_offsets=None) -> PlanOutcome:
@@ -114,7 +116,7 @@ class LibraryPlanSource:
         env = self.env.with_surface_offsets(surface_offsets) if surface_offsets else self.env
         projection = None
         if start is None:
-            res = plan(req, self.robot, env, self.library, self.psettings, steps)
+            res = plan(req, self.robot, env, self.psettings, steps)
         else:
             q, stance = start
             t0 = time.perf_counter()
@@ -124,8 +126,8 @@ class LibraryPlanSource:
                 return PlanOutcome(False, None, time.perf_counter() - t0, failure=f"start: {exc}")
             projection = float(np.linalg.norm(q0[:3] - np.asarray(q)[:3])) * 1e3
             try:
-                res = plan_climb(self.robot, env, steps, start=(q0, stance), library=self.library,
-                                 settings=self.psettings, seed=req.seed, timeout_s=req.plan_timeout_s)
+                res = plan_climb(self.robot, env, steps, start=(q0, stance), settings=self.psettings,
+                                 seed=req.seed, timeout_s=req.plan_timeout_s)
             except ClimbError as exc:  # a start the primitives cannot continue from: said, not raised
                 return PlanOutcome(False, None, time.perf_counter() - t0, failure=str(exc))
         ok = bool(res.success and res.plan is not None)
@@ -423,7 +425,7 @@ def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
         plans = SearchPlanSource(req, robot, env, psettings, cs, posture)
         return execute(req, plans, cs, scenario, posture, on_progress or (lambda m: None))
     library = load_library(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
-    plans = LibraryPlanSource(req, robot, env, library, psettings, cs)
+    plans = LibraryPlanSource(req, robot, env, psettings, cs)
     return execute(req, plans, cs, scenario, req.start_posture or library.initial_fixture,
                    on_progress or (lambda m: None))
 

@@ -55,7 +55,7 @@ def execute_plan(task: SweepTask, planned, cs) -> dict:
     req = ClimbRequest(ladder=scenario, robot=task.robot, rungs=task.steps, mode="qp", bag=False, seed=task.seed,
                        plan_timeout_s=task.timeout_s, command_delay_ticks=COMMAND_DELAY_TICKS, strategy="primitives")
     validate(req)
-    replans = LibraryPlanSource(req, planned.robot, planned.env, library, planned.settings, cs)
+    replans = LibraryPlanSource(req, planned.robot, planned.env, planned.settings, cs)
     source = GivenPlanSource(planned.result.plan, planned.robot, cs, replans)
     result = execute(req, source, cs, scenario, library.initial_fixture)
     try:

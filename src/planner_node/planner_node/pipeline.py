@@ -699,7 +699,8 @@ def adapt(problem: Problem, contact_plan: ContactPlan | None = None, on_progress
         start = start_state(problem)
         projection_mm = round(float(np.linalg.norm(start[0][:3] - problem.start[0][:3])) * 1e3, 2)
     planner = up_and_down if req.descend else plan_climb
-    res = planner(problem.robot, problem.env, req.rungs, library=problem.library, settings=problem.settings,
+    # library None: plan_climb ranks the strategy's libraries by their reference ladders (the sweep's)
+    res = planner(problem.robot, problem.env, req.rungs, settings=problem.settings,
                   start=start, seed=req.seed, timeout_s=req.timeout_s, on_progress=on_progress)
     summary = res.summary()
     summary["request_id"] = req.id
