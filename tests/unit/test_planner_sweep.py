@@ -67,8 +67,9 @@ def test_subset_plans_and_names_what_stopped_each_failure(rows, tmp_path):
     solved = {(r["inclination_deg"], r["rung_spacing"]) for r in rows if r["success"]}
     assert EXPECTED_SOLVED <= solved, rows
     for r in rows:
-        if r["success"]:
+        if r["success"]:  # counted only once the frozen check re-verified the plan
             assert r["rungs_reached"] == 2 and r["failure_constraint"] == "" and r["plan_time_s"] > 0
+            assert r["verified"] is True and r["verify_s"] > 0 and r["verify_detail"] == ""
         else:
             assert r["failure_constraint"] and r["failure_category"] == r["failure_constraint"].split(":")[0]
     csv_path = sweep.write_csv(rows, tmp_path / "subset.csv")

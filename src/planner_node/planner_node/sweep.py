@@ -26,6 +26,9 @@ from climb_core.errors import SpecError
 CSV_FIELDS = ("inclination_deg", "rung_spacing", "success", "plan_time_s", "plan_cpu_s", "failure_category",
               "failure_constraint", "frontier_constraint", "failure_detail", "rungs_reached", "n_stances", "attempts",
               "backtracks", "robot", "strategy", "steps", "timeout_s", "seed", "code_version",
+              # a planned climb re-checked by the frozen feasibility check (planner_node.verify):
+              # counted as success only if it passes
+              "verified", "verify_s", "verify_detail",
               # --execute (climb_coordinator.sweep_execute): the planned climb executed in the simulator;
               # empty in a planning-only sweep
               "executed", "exec_failure", "exec_rungs_reached", "exec_fell", "exec_replans", "exec_qp_failures",
@@ -244,11 +247,15 @@ def plan_task(task: SweepTask, settings=None) -> tuple[dict, Planned]:
         res = plan_climb(robot, env, task.steps, settings=settings, seed=task.seed, timeout_s=task.timeout_s)
         planned = Planned(robot, env, settings, res)
         s = res.summary()
-        row.update(success=bool(res.success), plan_time_s=round(res.plan_time_s, 3),
+        ok, failure, detail = bool(res.success), res.failure_constraint, res.failure_detail
+        if res.success:
+            ok, detail = verified(row, robot, env, res.plan, settings, task.steps)
+            failure = "" if ok else "verify"
+        row.update(success=ok, plan_time_s=round(res.plan_time_s, 3),
                    plan_cpu_s=round(res.plan_cpu_s, 3),
-                   failure_constraint=res.failure_constraint if not res.success else "",
-                   frontier_constraint="" if res.success else frontier(res),
-                   failure_detail="" if res.success else res.failure_detail[:300],
+                   failure_constraint="" if ok else failure,
+                   frontier_constraint="" if ok else ("verify" if res.success else frontier(res)),
+                   failure_detail="" if ok else detail[:300],
                    rungs_reached=s["rungs_reached"], n_stances=s["n_stances"], attempts=s["attempts"],
                    backtracks=s["backtracks"], strategy=settings.planning.strategy)
     except SpecError as exc:
@@ -258,6 +265,18 @@ def plan_task(task: SweepTask, settings=None) -> tuple[dict, Planned]:
                    strategy=task.strategy)
     row["failure_category"] = failure_category(row.get("failure_constraint", ""))
     return row, planned
+
+
+def verified(row: dict, robot, env, plan, settings, steps: int) -> tuple[bool, str]:
+    """Re-check a planned climb with the frozen feasibility check at the planner's discretisation,
+    its feet ending on rung ``steps`` (``row``'s verify columns filled); (ok, the failures)."""
+    from .verify import verify_plan
+
+    t0 = time.perf_counter()
+    rep = verify_plan(robot, env, plan, refine=1, settings=settings, goal_feet_rung=steps)
+    row.update(verified=bool(rep.ok), verify_s=round(time.perf_counter() - t0, 3),
+               verify_detail="" if rep.ok else rep.summary()[:300])
+    return bool(rep.ok), "" if rep.ok else f"frozen check: {rep.summary()}"
 
 
 def write_csv(rows: list[dict], path: str | pathlib.Path) -> pathlib.Path:
