@@ -22,12 +22,9 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import pathlib
 import sys
 
 import numpy as np
-
-ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
 def finger_points(robot, hand: str, posture: dict[str, float]) -> dict[str, np.ndarray]:
@@ -73,6 +70,9 @@ def finger_points(robot, hand: str, posture: dict[str, float]) -> dict[str, np.n
 
 
 def measure(robot, hand: str, posture: dict[str, float], links: tuple[str, ...] = (), margin: float = 0.0) -> dict:
+    """Per finger link: reach past the palm face [m] and whether it stands in the rung's path
+    (widened by ``margin`` on each side); overall: the farthest reach and the path clear, both
+    over the links whose names contain one of ``links`` (all when empty)."""
     radius = robot.config.limbs[hand].surface.radius
     pts = finger_points(robot, hand, posture)
     rows = {}
