@@ -106,7 +106,7 @@ class RobotModel:
         self._full_model = full
         self._full_collision_model = geom
 
-        q_lock = np.clip(pin.neutral(full), full.lowerPositionLimit, full.upperPositionLimit)
+        q_lock = pin.neutral(full)  # only the locked joints' entries are read
         locked_ids = [full.getJointId(name) for name in config.locked_joints]
         for name, jid in zip(config.locked_joints, locked_ids):
             q_lock[full.joints[jid].idx_q] = config.locked_posture[name]

@@ -242,7 +242,7 @@ class PyBulletBackend(Backend):
         lower = np.array([self.joint_info[nm][8] for nm in self.finger_names])
         upper = np.array([self.joint_info[nm][9] for nm in self.finger_names])
         self.finger_effort = np.array([self.joint_info[nm][10] for nm in self.finger_names])
-        self.finger_open = np.clip([cfg.locked_posture[nm] for nm in self.finger_names], lower, upper)
+        self.finger_open = np.array([cfg.locked_posture[nm] for nm in self.finger_names])  # within the limits
         for k, (lo, hi) in enumerate(zip(lower, upper)):
             self.finger_closed[k] = hi if abs(hi) > abs(lo) + 1e-9 else lo if abs(lo) > abs(hi) + 1e-9 else 0.0
         for hand in HANDS:
