@@ -37,6 +37,9 @@ def test_sweep_execute_plans_and_executes_a_grid_ladder(tmp_path):
     assert int(row["exec_rungs_reached"]) == 1  # both feet on rung 1, from the simulator's contacts
     assert row["exec_fell"] == "False" and int(row["exec_replans"]) == 0  # the sweep's own plan, no replan
     assert float(row["exec_sim_time_s"]) > 10.0
+    # the execution followed the plan: the joint farthest from it at the worst transition end, named
+    assert 0.0 < float(row["exec_max_joint_error_rad"]) < 0.5, row
+    assert row["exec_max_joint_error_at"].startswith("transition "), row
     assert summary["n_executed_success"] == 1 and summary["executed_of_planned"] == 1.0
     import matplotlib.image as mpimg
 

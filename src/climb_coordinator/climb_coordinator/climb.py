@@ -387,6 +387,7 @@ class InProcessExecutor:
             "real_time_factor": round(sim_time / out.wall_time_s, 3) if out.wall_time_s > 0 else 0.0,
             # largest tangential / (mu normal) of each unilateral contact over the run (cone: <= 1)
             "max_cone_use": self.cone_use.summary(),
+            "tracking": tracking_summary(self.controller),
         }
         if self.req.mode == "compliance":
             r["motor_trips"] = sorted(self.runner.log.tripped)
@@ -397,6 +398,19 @@ class InProcessExecutor:
         if self.bag is not None:
             self.bag.close()
             self.bag = None
+
+
+def tracking_summary(controller) -> dict:
+    """Each finished transition's end against its plan (controller event ``transition_finished``):
+    ``per_transition`` [index, primitive, base error [m], joint error [rad], joint] and the worst."""
+    ends = controller.events_of("transition_finished") if controller is not None else []
+    rows = [[int(e.values["index"]), e.values["primitive"], round(float(e.values["base_error"]), 4),
+             round(float(e.values["joint_error"]), 4), e.values["joint"]] for e in ends]
+    worst = max(rows, key=lambda r: r[3], default=None)
+    return {"per_transition": rows,
+            "max_joint_error_rad": worst[3] if worst else 0.0,
+            "max_joint_error_at": f"transition {worst[0]} ({worst[1]}): {worst[4]}" if worst else "",
+            "max_base_error_m": max((r[2] for r in rows), default=0.0)}
 
 
 # ------------------------------------------------------------------------------ entry points

@@ -28,7 +28,8 @@ def run_task(task: SweepTask) -> dict:
     cs = load_climb_settings()
     row, planned = plan_task(task, apply_planner_overrides(load_settings(), dict(cs.planner_overrides)))
     row.update(executed=False, exec_failure="", exec_rungs_reached=0, exec_fell=False, exec_replans=0,
-               exec_qp_failures=0, exec_sim_time_s=0.0, exec_wall_time_s=0.0)
+               exec_qp_failures=0, exec_sim_time_s=0.0, exec_wall_time_s=0.0, exec_max_joint_error_rad=0.0,
+               exec_max_joint_error_at="")
     res = planned.result
     if not row.get("success") or res is None or res.plan is None:
         row["exec_failure"] = "not planned"
@@ -66,4 +67,7 @@ def execute_plan(task: SweepTask, planned, cs) -> dict:
     return {"executed": ok, "exec_failure": "" if ok else str(s.get("failure_reason", ""))[:300],
             "exec_rungs_reached": int(s.get("rungs_reached", 0)), "exec_fell": bool(s.get("fell")),
             "exec_replans": len(s.get("replans") or []), "exec_qp_failures": int(s.get("qp_failures", 0)),
-            "exec_sim_time_s": round(float(s.get("sim_time_s", 0.0)), 2)}
+            "exec_sim_time_s": round(float(s.get("sim_time_s", 0.0)), 2),
+            # how far the measured configuration ended from the plan, at the worst transition end
+            "exec_max_joint_error_rad": float((s.get("tracking") or {}).get("max_joint_error_rad", 0.0)),
+            "exec_max_joint_error_at": str((s.get("tracking") or {}).get("max_joint_error_at", ""))}

@@ -690,6 +690,7 @@ class Controller:
         return self.transition
 
     def finish_transition(self) -> None:
+        self._track_end()
         self._finished = True
         if self._replacing is not None:  # a lost contact put back: the interrupted transition runs again
             self._finished = False
@@ -697,6 +698,19 @@ class Controller:
             self._replacing = None
         if self.moving_limb:
             self.set_guard(self.moving_limb, self.target_surface, True)
+
+    def _track_end(self) -> None:
+        """Event ``transition_finished``: how far the measured configuration ended from the end of
+        the transition's path (base position [m], the joint farthest off [rad])."""
+        t, state = self.transition, self.state
+        if t is None or state is None or not len(t.path):
+            return
+        end = np.asarray(t.path[-1], dtype=float)
+        err = np.abs(np.asarray(state.q[7:], dtype=float) - end[7:])
+        j = int(np.argmax(err))
+        self.emit("transition_finished", index=self.transition_index, primitive=t.primitive, limb=t.moving_limb,
+                  base_error=float(np.linalg.norm(state.q[:3] - end[:3])), joint_error=float(err[j]),
+                  joint=self.joint_names[j])
 
     def hold_here(self) -> None:
         """Targets = the measured state now (CoM, joints, base orientation); no contact-body task."""

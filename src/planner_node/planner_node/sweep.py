@@ -32,7 +32,10 @@ CSV_FIELDS = ("inclination_deg", "rung_spacing", "success", "plan_time_s", "plan
               # --execute (climb_coordinator.sweep_execute): the planned climb executed in the simulator;
               # empty in a planning-only sweep
               "executed", "exec_failure", "exec_rungs_reached", "exec_fell", "exec_replans", "exec_qp_failures",
-              "exec_sim_time_s", "exec_wall_time_s")
+              "exec_sim_time_s", "exec_wall_time_s",
+              # the worst transition end of the execution against the plan (controller event
+              # transition_finished): the joint farthest from the plan's configuration [rad], where
+              "exec_max_joint_error_rad", "exec_max_joint_error_at")
 
 
 @dataclass(frozen=True)
