@@ -58,6 +58,11 @@ class Hold:
     friction: float  # Coulomb coefficient [-]
     bilateral: bool = False  # closed grasp: pull allowed, no friction cone
     grip_force_limit: float = 0.0  # [N] max force through the grasp (bilateral only)
+    # a closed grasp as it latched: T_world_surface (4x4, nested tuples) of the robot's grasp surface.
+    # A grasp's roll about its rung is free while the hand comes to it (the IK chooses it); once the
+    # hand has closed, the roll is fixed and every later configuration holding it keeps this pose.
+    # None: not latched (the roll stays free). Planning-time only: not serialised, not compared.
+    pose: tuple | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "points", tuple(self.points))

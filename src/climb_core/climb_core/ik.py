@@ -158,6 +158,10 @@ def _contact_tasks(robot: Any, env: Any, data: pin.Data, targets: Stance | Mappi
         T_fs = np.asarray(rs.T_frame_surface)
         if isinstance(spec, holds_mod.HoldTarget):
             ht = spec
+        elif isinstance(spec, Hold) and spec.pose is not None:  # a latched grasp: its roll is fixed
+            T = np.asarray(spec.pose, dtype=float)
+            ht = holds_mod.HoldTarget(limb, rs.frame, T, holds_mod.frame_pose_from_surface(robot, limb, T, rs.name),
+                                      None, "pose", rs.name)
         elif isinstance(spec, np.ndarray) and spec.shape == (4, 4):
             ht = holds_mod.HoldTarget(limb, rs.frame, spec, holds_mod.frame_pose_from_surface(robot, limb, spec, rs.name),
                                       None, "pose", rs.name)

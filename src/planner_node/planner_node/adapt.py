@@ -128,6 +128,9 @@ class AdaptContext:
         base_ik = core_ik.load_ik_params()
         self.ik_params = dataclasses.replace(base_ik, restarts=0)
         self.stats = AdaptStats()
+        # id(state) -> (state, the state with its grasps latched): every attempt from one state sees
+        # the same Hold objects (the feasibility check caches compiled stances by their holds' ids)
+        self.latched: dict[int, tuple[Any, Any]] = {}
         self._targets: dict[int, tuple[Hold, np.ndarray]] = {}
         self._cues: dict[int, tuple[Primitive, Any]] = {}  # limb_cues per primitive
 
@@ -767,6 +770,29 @@ class Segment:
     attempt: int = 0
 
 
+def latch_grasps(ctx: AdaptContext, state: ClimbState) -> ClimbState:
+    """``state`` with every closed grasp of its stance latched at its pose in ``state.q``: from here
+    on the hand keeps that roll about the rung (``projection.latch_grasps``; a hold that already has
+    a pose keeps it)."""
+    if not ctx.settings.projection.latch_grasps:
+        return state
+    hit = ctx.latched.get(id(state))
+    if hit is not None and hit[0] is state:
+        return hit[1]
+    holds = []
+    for h in state.stance.holds:
+        if h.bilateral and h.pose is None:
+            T = ctx.robot.T_world_surface(h.limb, state.q, surface=h.robot_surface)
+            h = dataclasses.replace(h, pose=tuple(tuple(float(x) for x in row) for row in T))
+        holds.append(h)
+    latched = state if all(a is b for a, b in zip(holds, state.stance.holds)) else \
+        ClimbState(state.q, Stance(tuple(holds), name=state.stance.name))
+    if len(ctx.latched) > 512:
+        ctx.latched.clear()
+    ctx.latched[id(state)] = (state, latched)
+    return latched
+
+
 def adapt_primitive(ctx: AdaptContext, prim: Primitive, state: ClimbState, attempt: int,
                     rng: np.random.Generator) -> Step | AttemptFailure:
     """Adapt-Primitive(Q̄, q_s, σ_s) for one attempt (see the module docstring)."""
@@ -788,6 +814,7 @@ def _adapt_limb(ctx: AdaptContext, prim: Primitive, state: ClimbState, attempt: 
     """Adapt-Primitive for a limb transfer; ``hold`` / ``q_end_seed`` fix the ending hold and
     seed the end configuration (a contact plan's next stance and transition configuration)
     instead of sampling around the seed hold."""
+    state = latch_grasps(ctx, state)
     limb = prim.limb
     old = state.stance.hold(limb)
     if hold is None:
@@ -855,6 +882,7 @@ def _adapt_limb(ctx: AdaptContext, prim: Primitive, state: ClimbState, attempt: 
 
 def _adapt_com(ctx: AdaptContext, prim: Primitive, state: ClimbState, attempt: int,
                rng: np.random.Generator, q_end_seed: np.ndarray | None = None) -> Step | AttemptFailure:
+    state = latch_grasps(ctx, state)
     stance = state.stance
     wps = _world_waypoints(ctx, prim)
     d_end = stance_anchor(stance) - point_to_world(ctx.env, prim.anchor_end)

@@ -81,6 +81,10 @@ class ProjectionParams:
     grasp_roll_tolerance: float = param(0.15, unit="rad", min=-1.0, description=(
         "a moving hand's new grasp rolled more than this about its rung (vs the hold's nominal pose) is "
         "projected again with the roll pinned (-1: never)"))
+    latch_grasps: bool = param(True, unit="-", description=(
+        "a grasp held from one primitive to the next keeps the roll about its rung it latched with (the "
+        "simulator's and the controller's closed hand cannot roll around the rung); false: free in every "
+        "configuration (before 2026-11-30: the arms swung the hands 40-55 deg around the rung within a CoM shift)"))
     start_seed_restarts: int = param(3, unit="-", min=-1, description=(
         "limb / CoM primitives: when the primitive's end configuration cannot be projected, project the start "
         "configuration (limb on its new hold) with this many restarts (-1: never)"))
