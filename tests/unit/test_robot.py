@@ -443,8 +443,10 @@ def test_cached_collision_geometry_equals_the_hulls_built_from_the_source_meshes
 def test_collision_cache_key_follows_the_config(monkeypatch, tmp_path):
     from climb_core import geometry_cache
 
-    monkeypatch.setattr(geometry_cache, "cache_dir", lambda: tmp_path)
+    # loaded first: the first load_robot("talos") of a worker writes its collision cache (into the
+    # real cache directory here, not into tmp_path, which must start empty)
     talos = load_robot("talos")
+    monkeypatch.setattr(geometry_cache, "cache_dir", lambda: tmp_path)
     cache = geometry_cache.CollisionUrdfCache(talos.config)
     assert cache.cached() is None
     path = cache.write(talos.full_collision_model)
