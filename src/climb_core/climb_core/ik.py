@@ -156,14 +156,13 @@ def _contact_tasks(robot: Any, env: Any, data: pin.Data, targets: Stance | Mappi
             rs = holds_mod.limb_surface(robot, limb, getattr(spec, "robot_surface", None) or None)
         fid = robot.frame_id(rs.frame)
         T_fs = np.asarray(rs.T_frame_surface)
+        # a full pose target: a latched grasp (its roll about the rung fixed) or a bare 4x4
+        pose = (np.asarray(spec.pose, dtype=float) if isinstance(spec, Hold) and spec.pose is not None
+                else spec if isinstance(spec, np.ndarray) and spec.shape == (4, 4) else None)
         if isinstance(spec, holds_mod.HoldTarget):
             ht = spec
-        elif isinstance(spec, Hold) and spec.pose is not None:  # a latched grasp: its roll is fixed
-            T = np.asarray(spec.pose, dtype=float)
-            ht = holds_mod.HoldTarget(limb, rs.frame, T, holds_mod.frame_pose_from_surface(robot, limb, T, rs.name),
-                                      None, "pose", rs.name)
-        elif isinstance(spec, np.ndarray) and spec.shape == (4, 4):
-            ht = holds_mod.HoldTarget(limb, rs.frame, spec, holds_mod.frame_pose_from_surface(robot, limb, spec, rs.name),
+        elif pose is not None:
+            ht = holds_mod.HoldTarget(limb, rs.frame, pose, holds_mod.frame_pose_from_surface(robot, limb, pose, rs.name),
                                       None, "pose", rs.name)
         else:
             if env is None:
