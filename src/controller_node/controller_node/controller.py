@@ -188,7 +188,7 @@ class Controller:
         self.grippers_out: list[GripperRequest] = []
         self._queued_grippers: list[GripperRequest] = []  # requested between two ticks (hold_plan)
         self.events: list[ControllerEvent] = []
-        self.dampers_released = 0  # ticks solved only after releasing dampers within the security distance
+        self.dampers_released = 0  # ticks solved only after releasing dampers (within the security distance, or pushing)
         #: the plan index to run again once a contact lost in a brace is put back (replace_lost)
         self._replacing: int | None = None
         self._released_pairs: list[tuple[str, str]] = []
@@ -389,27 +389,32 @@ class Controller:
                              list(self.grippers_out), status, wrenches)
 
     def _solve_without_blocked_dampers(self, contacts: list[ActiveContact], disabled: frozenset):
-        """One retry after an infeasible QP: the dampers of pairs already within the security
-        distance (a knee resting against a rung while both feet hold) can demand a separating
-        acceleration the held contacts forbid. Those pairs are released for this tick (event
-        ``dampers_released``); every other constraint stays. None if that does not help."""
+        """Retries after an infeasible QP: a damper can demand a separating acceleration the held
+        contacts forbid (both knees within 1-5 mm of rung 2 while both feet hold; a knee 6 mm
+        under the next rung while one foot carries the robot on a 32 cm-spaced ladder). First the
+        pairs already within the security distance are released for this tick, then, if that is
+        not enough, also every pair whose damper demands a separating acceleration (lower > 0); event
+        ``dampers_released``. Every other constraint (dynamics, contacts, cones, torque limits)
+        stays: this is a better answer than the relaxed fallback, which drops all of them but the
+        equalities. None if neither helps."""
         ds = self.params.collision.security_distance
-        blocked = []
-        for row in self.wb.last_dampers():
-            if row.distance <= ds + 1e-9 and "|" in row.name:
-                a, b = row.name.split("|", 1)
-                blocked.append((a, b))
-        if not blocked:
-            return None
-        try:
-            result = self.wb.solve(contacts, self.active_tasks, frozenset(disabled) | frozenset(blocked))
-        except QpFailure:
-            return None
-        self.dampers_released += 1
-        if self._released_pairs != blocked:
-            self._released_pairs = blocked
-            self.emit("dampers_released", pairs=[f"{a}|{b}" for a, b in blocked])
-        return result
+        rows = [r for r in self.wb.last_dampers() if "|" in r.name]
+        within = [tuple(r.name.split("|", 1)) for r in rows if r.distance <= ds + 1e-9]
+        pushing = [tuple(r.name.split("|", 1)) for r in rows if r.lower > 0.0]
+        widened = sorted(set(within) | set(pushing))
+        for blocked in (within, widened if len(widened) > len(within) else []):
+            if not blocked:
+                continue
+            try:
+                result = self.wb.solve(contacts, self.active_tasks, frozenset(disabled) | frozenset(blocked))
+            except QpFailure:
+                continue
+            self.dampers_released += 1
+            if self._released_pairs != blocked:
+                self._released_pairs = blocked
+                self.emit("dampers_released", pairs=[f"{a}|{b}" for a, b in blocked])
+            return result
+        return None
 
     # ------------------------------------------------------------------ compliance
     def _pwm(self, state: RobotState, tau: np.ndarray) -> np.ndarray:
