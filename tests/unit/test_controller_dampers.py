@@ -27,21 +27,26 @@ def _rows(nv: int, ds: float) -> list[DamperRow]:
             DamperRow("left_knee_link|rung_2", 0.043, 0.205, z, -98.5)]  # moving away: not binding
 
 
-def _solver(calls: list, needs: set):
+def _stub(controller, nv: int, monkeypatch, needs: set) -> list:
+    """The controller's last dampers are :func:`_rows`; its QP is feasible only with the pairs
+    ``needs`` released. Returns the list of released sets each solve was called with."""
+    rows = _rows(nv, controller.params.collision.security_distance)
+    monkeypatch.setattr(controller.wb, "last_dampers", lambda: rows)
+    calls: list = []
+
     def solve(contacts, tasks, disabled=frozenset()):
         calls.append(frozenset(disabled))
         if not needs <= set(disabled):
             raise QpFailure(None, -1, "daqp", "infeasible")
         return "solved"
-    return solve
+
+    monkeypatch.setattr(controller.wb, "solve", solve)
+    controller.events.clear()
+    return calls
 
 
 def test_a_pushing_damper_is_released_after_the_pairs_within_the_security_distance(g1, controller, monkeypatch):
-    ds = controller.params.collision.security_distance
-    monkeypatch.setattr(controller.wb, "last_dampers", lambda: _rows(g1.model.nv, ds))
-    calls: list = []
-    monkeypatch.setattr(controller.wb, "solve", _solver(calls, {("left_knee_link", "rung_3")}))
-    controller.events.clear()
+    calls = _stub(controller, g1.model.nv, monkeypatch, {("left_knee_link", "rung_3")})
     out = controller._solve_without_blocked_dampers([], frozenset({("a", "b")}))
     assert out == "solved"
     within = frozenset({("a", "b"), ("right_knee_link", "rung_2")})
@@ -52,20 +57,13 @@ def test_a_pushing_damper_is_released_after_the_pairs_within_the_security_distan
 
 
 def test_the_pairs_within_the_security_distance_alone_when_they_suffice(g1, controller, monkeypatch):
-    ds = controller.params.collision.security_distance
-    monkeypatch.setattr(controller.wb, "last_dampers", lambda: _rows(g1.model.nv, ds))
-    calls: list = []
-    monkeypatch.setattr(controller.wb, "solve", _solver(calls, {("right_knee_link", "rung_2")}))
+    calls = _stub(controller, g1.model.nv, monkeypatch, {("right_knee_link", "rung_2")})
     assert controller._solve_without_blocked_dampers([], frozenset()) == "solved"
     assert calls == [frozenset({("right_knee_link", "rung_2")})]
 
 
 def test_a_conflict_the_dampers_do_not_explain_stays_a_failure(g1, controller, monkeypatch):
-    ds = controller.params.collision.security_distance
-    monkeypatch.setattr(controller.wb, "last_dampers", lambda: _rows(g1.model.nv, ds))
-    calls: list = []
-    monkeypatch.setattr(controller.wb, "solve", _solver(calls, {("left_knee_link", "rung_2")}))
-    controller.events.clear()
+    calls = _stub(controller, g1.model.nv, monkeypatch, {("left_knee_link", "rung_2")})
     assert controller._solve_without_blocked_dampers([], frozenset()) is None
     assert len(calls) == 2 and not controller.events_of("dampers_released") and controller.dampers_released == 0
     monkeypatch.setattr(controller.wb, "last_dampers", lambda: [])
