@@ -49,8 +49,7 @@ from climb_core.errors import SpecError
 from . import interpolation as interp
 from . import pcik
 from .msp import AttemptFailure, Step
-from .primitives import (Primitive, PrimitiveLibrary, point_to_ladder, point_to_world, reference_key, to_world,
-                         vector_to_world)
+from .primitives import Primitive, PrimitiveLibrary, point_to_world, to_world
 from .settings import PlannerSettings
 
 SKIP = "skip"
@@ -431,26 +430,6 @@ def _shift_base(q: np.ndarray, d: np.ndarray) -> np.ndarray:
     out = np.asarray(q, dtype=float).copy()
     out[:3] += d
     return out
-
-
-def incline_shift(ctx: AdaptContext, stance: Stance, q: np.ndarray) -> np.ndarray:
-    """World shift of the pelvis of ``q`` (a primitive's end on ``stance``) on a ladder steeper
-    than the library's reference: the shear that maps the reference's rungs onto this ladder's,
-    taken at the pelvis' height above the feet (``projection.incline_shear`` of it). The
-    transformed design keeps the pelvis where it was over the feet on the reference; on a steeper
-    ladder the rung above a supporting foot is further back, and the bent knee met it."""
-    k = ctx.settings.projection.incline_shear
-    lad = getattr(ctx.env.scenario, "ladder", None)
-    feet = [h.centre for h in stance.holds if h.limb in FEET]
-    if k <= 0.0 or lad is None or not feet:
-        return np.zeros(3)
-    theta, theta_ref = float(lad.inclination_deg), reference_key(ctx.library)[0]
-    if theta <= theta_ref:
-        return np.zeros(3)
-    z_feet = float(np.mean([point_to_ladder(ctx.env, c)[2] for c in feet]))
-    h = float(point_to_ladder(ctx.env, q[:3])[2]) - z_feet
-    cot = lambda deg: math.cos(math.radians(deg)) / max(math.sin(math.radians(deg)), 1e-9)  # noqa: E731
-    return vector_to_world(ctx.env, np.array([k * h * (cot(theta) - cot(theta_ref)), 0.0, 0.0]))
 
 
 # --------------------------------------------------------------------------------------------
@@ -907,11 +886,7 @@ def _adapt_com(ctx: AdaptContext, prim: Primitive, state: ClimbState, attempt: i
     stance = state.stance
     wps = _world_waypoints(ctx, prim)
     d_end = stance_anchor(stance) - point_to_world(ctx.env, prim.anchor_end)
-    if q_end_seed is None:
-        q_bar_e = _shift_base(wps[-1], d_end)
-        q_bar_e = _shift_base(q_bar_e, incline_shift(ctx, stance, q_bar_e))
-    else:
-        q_bar_e = np.asarray(q_end_seed, dtype=float)
+    q_bar_e = _shift_base(wps[-1], d_end) if q_end_seed is None else np.asarray(q_end_seed, dtype=float)
     if attempt > 0:
         q_bar_e = _perturb(ctx, q_bar_e, attempt, rng)
     # the way-points carry the designed CoM placement (make_primitives used com_over); the

@@ -88,11 +88,6 @@ class ProjectionParams:
     start_seed_restarts: int = param(3, unit="-", min=-1, description=(
         "limb / CoM primitives: when the primitive's end configuration cannot be projected, project the start "
         "configuration (limb on its new hold) with this many restarts (-1: never)"))
-    incline_shear: float = param(1.0, unit="-", min=0.0, description=(
-        "on a ladder steeper than the library's reference ladder, a CoM primitive's end pelvis is moved back "
-        "(L -x) by this share of the shear that maps the reference's rungs onto the ladder's: height above "
-        "the feet x (cot incline - cot reference incline); it keeps the supporting knee behind the rung above "
-        "its foot (0: none; before 2026-11-30 none, and from 78 deg the left knee met the next rung)"))
 
 
 @dataclass(frozen=True)
