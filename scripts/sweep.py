@@ -16,7 +16,7 @@ over the planned ladders.
 Workers are pluggable: local processes by default; ``--backend ray`` sends the same tasks to an
 existing Ray cluster (``--ray-address``, default: the RAY_ADDRESS variable or a local instance).
 Every finished ladder is appended to ``<name>.partial.csv`` at once (a killed sweep keeps what it
-measured); ``--resume`` reuses that journal's rows planned by the same code (src, config and scripts as
+measured, and its local workers die with it, SIGKILL included); ``--resume`` reuses that journal's rows planned by the same code (src, config and scripts as
 committed; a commit of docs or tests keeps the rows), robot, steps, timeout and seed (and, with
 ``--execute``, executed), and plans only the other ladders.
 The last line on standard output is a JSON summary (success rate, median planning time, failures
@@ -82,8 +82,25 @@ def task_runner(execute: bool):
     return run_task
 
 
+def _die_with_the_sweep() -> None:
+    """Pool worker initializer: the kernel sends the worker SIGKILL when the sweep process dies
+    (PR_SET_PDEATHSIG: also on SIGTERM or SIGKILL of the sweep, which would otherwise leave its
+    workers planning for an hour with nobody to take their rows)."""
+    import ctypes
+    import os
+    import signal
+
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    except OSError:
+        pass
+    if os.getppid() == 1:  # the sweep died before prctl
+        os._exit(1)
+
+
 def run_local(tasks, workers: int, progress: Progress, done, execute: bool = False) -> list[dict]:
-    """``done(row)`` is called in this process as each row arrives (stamps and journals it)."""
+    """``done(row)`` is called in this process as each row arrives (stamps and journals it).
+    The workers die with this process (:func:`_die_with_the_sweep`)."""
     run_task = task_runner(execute)
 
     rows = []
@@ -95,7 +112,8 @@ def run_local(tasks, workers: int, progress: Progress, done, execute: bool = Fal
     import concurrent.futures as cf
     import multiprocessing as mp
 
-    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                initializer=_die_with_the_sweep) as pool:
         futures = [pool.submit(run_task, t) for t in tasks]
         for fut in cf.as_completed(futures):
             rows.append(done(fut.result()))

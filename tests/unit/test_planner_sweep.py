@@ -189,3 +189,64 @@ def test_code_version_names_the_code_trees_not_the_commit():
     import hashlib
 
     assert version.split("+")[0] == hashlib.sha1(" ".join(trees).encode()).hexdigest()[:10]
+
+
+def _children(pid: int) -> dict[int, str]:
+    """pid -> command line of the live processes whose parent is ``pid`` (from /proc)."""
+    out = {}
+    for d in pathlib.Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+            fields = stat[stat.rindex(")") + 2:].split()
+            if int(fields[1]) == pid and fields[0] not in "ZX":
+                out[int(d.name)] = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, ValueError):
+            continue
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        stat = pathlib.Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rindex(")") + 2] not in "ZX"  # a zombie waits for its reaper: it runs no more
+
+
+def test_a_killed_sweep_takes_its_workers_with_it(tmp_path):
+    """SIGKILL of a 2-worker sweep while both workers plan: the workers die with it (they kept
+    planning for an hour before, measured 2026-11-30, with nobody to take their rows)."""
+    import os
+    import signal
+    import time
+
+    import yaml
+
+    grid = tmp_path / "grid.yaml"
+    grid.write_text(yaml.safe_dump(grid_doc()))
+    # two ladders beyond the library: each worker plans until the 60 s limit
+    cmd = [sys.executable, str(ROOT / "scripts" / "sweep.py"), "--grid", str(grid), "--ladders", "90/0.35,90/0.32",
+           "--timeout", "60", "--workers", "2", "--out-dir", str(tmp_path), "--name", "killed"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        workers: list[int] = []
+        deadline = time.monotonic() + 90.0
+        while time.monotonic() < deadline and len(workers) < 2:
+            time.sleep(0.5)
+            workers = [pid for pid, cmdline in _children(proc.pid).items() if "spawn_main" in cmdline]
+        assert len(workers) == 2, _children(proc.pid)
+        time.sleep(3.0)  # past the workers' start-up: planning
+        assert all(_alive(pid) for pid in workers)
+        proc.kill()
+        proc.wait(timeout=10)
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and any(_alive(pid) for pid in workers):
+            time.sleep(0.2)
+        assert not [pid for pid in workers if _alive(pid)]
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)  # whatever is left of the sweep's session
+        except ProcessLookupError:
+            pass
