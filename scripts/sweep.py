@@ -84,18 +84,11 @@ def task_runner(execute: bool):
 
 def _die_with_the_sweep() -> None:
     """Pool worker initializer: the kernel sends the worker SIGKILL when the sweep process dies
-    (PR_SET_PDEATHSIG: also on SIGTERM or SIGKILL of the sweep, which would otherwise leave its
-    workers planning for an hour with nobody to take their rows)."""
-    import ctypes
-    import os
-    import signal
+    (also on SIGTERM or SIGKILL of the sweep, which would otherwise leave its workers planning for
+    an hour with nobody to take their rows)."""
+    from climb_core.process import die_with_parent
 
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
-    except OSError:
-        pass
-    if os.getppid() == 1:  # the sweep died before prctl
-        os._exit(1)
+    die_with_parent()
 
 
 def run_local(tasks, workers: int, progress: Progress, done, execute: bool = False) -> list[dict]:

@@ -14,7 +14,6 @@ Children inherit the loopback DDS environment (climb_core.ros_env.local_dds_env)
 """
 from __future__ import annotations
 
-import ctypes
 import functools
 import os
 import pathlib
@@ -28,6 +27,7 @@ from typing import Any
 import yaml
 
 from climb_core.errors import SpecError
+from climb_core.process import die_with_parent
 from climb_core.ros_env import local_dds_env, project_root
 
 LAYOUTS = ("processes", "composed")
@@ -172,9 +172,6 @@ def command(spec: NodeSpec, extra_params: dict | None = None, prefix: str | None
 
 # ------------------------------------------------------------------------------ processes
 
-_PR_SET_PDEATHSIG = 1
-
-
 def _child_setup(nice: int = 0) -> None:
     """In the child, before exec: its own process group, its niceness (ignored when not
     permitted), and SIGKILL when the launcher dies."""
@@ -184,13 +181,7 @@ def _child_setup(nice: int = 0) -> None:
             os.nice(nice)
         except OSError:
             pass
-    try:
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    except OSError:
-        pass
-    if os.getppid() == 1:  # the launcher died before prctl: do not outlive it
-        os._exit(1)
+    die_with_parent(signal.SIGKILL)
 
 
 class GraphProcesses:
