@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from planner_node import plan_io
-from planner_node.interpolation import time_parameterize
+from planner_node.interpolation import time_parameterize, time_transition
 from planner_node.settings import load_settings
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
@@ -30,9 +30,7 @@ def test_retimed_keeps_the_paths_and_times_them_under_the_given_limits(g1):
         np.testing.assert_array_equal(t.path, b.path)
         assert b.stance == t.stance and b.target_stance == t.target_stance and b.primitive == t.primitive
         np.testing.assert_allclose(a.times, t.times, atol=1e-6)  # the planner's own timing, reproduced
-        expected = time_parameterize(g1.model, list(t.path), half.max_joint_speed, half.max_base_speed,
-                                     half.max_base_angular_speed, half.min_transition_duration, half.ramp_fraction)
-        np.testing.assert_allclose(b.times, expected)
+        np.testing.assert_allclose(b.times, time_transition(g1.model, list(t.path), t.stance, half))
         # half the speed: twice the time, unless the least duration of a transition decides
         assert b.times[-1] == pytest.approx(max(2 * t.times[-1], half.min_transition_duration), rel=1e-6) \
             or t.times[-1] <= half.min_transition_duration + 1e-9
@@ -91,3 +89,55 @@ def test_the_com_acceleration_bound_holds_and_only_lengthens_the_path(g1):
     bounded = time_parameterize(g1.model, path, *args, max_com_acceleration=0.2)
     assert _com_accelerations(g1.model, path, bounded).max() <= 0.2 * 1.01 + 1e-9
     assert np.all(np.diff(bounded) >= np.diff(free) - 1e-12)  # segments only lengthened
+
+
+def _standing_on_soles(g1):
+    from climb_core import fixtures
+    from climb_core.environment import build_environment
+    from climb_core.ladder import load_scenario
+
+    return fixtures.get("standing", g1, build_environment(load_scenario("default")))
+
+
+def test_near_the_heels_the_path_slows_down_and_elsewhere_it_does_not(g1):
+    """``timing.edge_slowdown_margin``: the base moved back toward the heels with the soles alone
+    holding the robot: segments whose CoM is within the margin of the heels' edge take margin /
+    distance longer (capped), the others keep their time; a sideways move of the same length (the
+    sides are 6 cm from the CoM's track at most, and not counted) and a path with a grasp are not
+    slowed."""
+    from climb_core.contact import Stance
+    from planner_node.interpolation import support_edge_factors
+
+    stance, q0 = _standing_on_soles(g1)
+    timing = load_settings().timing
+    assert timing.edge_slowdown_margin > 0.0 and timing.edge_slowdown_max > 1.0
+    soles = np.vstack([h.positions for h in stance.holds])
+    data = g1.model.createData()
+    import pinocchio as pin
+
+    c0 = pin.centerOfMass(g1.model, data, q0)[:2]
+    heel_gap = float(c0[0] - soles[:, 0].min())  # [m] CoM in front of the heels' edge at the start
+    path = []
+    for x in np.linspace(0.0, heel_gap - 0.015, 12):  # back to 1.5 cm in front of the heels
+        q = q0.copy()
+        q[0] -= x
+        path.append(q)
+    factors = support_edge_factors(g1.model, path, stance, timing.edge_slowdown_margin, timing.edge_slowdown_max)
+    assert factors is not None and len(factors) == len(path) - 1
+    assert factors[0] == 1.0 and factors[-1] == timing.edge_slowdown_max  # far: as planned; 1.5 cm: capped
+    assert np.all(np.diff(factors) >= 0.0)  # nearer the heels, slower
+    free = time_parameterize(g1.model, path, timing.max_joint_speed, timing.max_base_speed,
+                             timing.max_base_angular_speed, 0.0, 0.0)
+    slowed = time_transition(g1.model, path, stance, dataclasses.replace(timing, min_transition_duration=0.0,
+                                                                         ramp_fraction=0.0))
+    np.testing.assert_allclose(np.diff(slowed), np.diff(free) * factors)
+    off = dataclasses.replace(timing, edge_slowdown_margin=0.0, min_transition_duration=0.0, ramp_fraction=0.0)
+    np.testing.assert_allclose(time_transition(g1.model, path, stance, off), free)
+    sideways = []
+    for y in np.linspace(0.0, 0.05, 12):
+        q = q0.copy()
+        q[1] += y
+        sideways.append(q)
+    assert support_edge_factors(g1.model, sideways, stance, timing.edge_slowdown_margin, 2.0) is None
+    grasped = Stance(stance.holds[:1] + (dataclasses.replace(stance.holds[1], bilateral=True),), "grasp")
+    assert support_edge_factors(g1.model, path, grasped, timing.edge_slowdown_margin, 2.0) is None

@@ -748,10 +748,7 @@ def _segment_index(ctx: AdaptContext, milestones: list[np.ndarray], path: list[n
 
 def make_transition(ctx: AdaptContext, prim: Primitive, stance: Stance, target: Stance, path: list[np.ndarray]
                     ) -> Transition:
-    tp = ctx.settings.timing
-    times = interp.time_parameterize(ctx.robot.model, path, tp.max_joint_speed, tp.max_base_speed,
-                                     tp.max_base_angular_speed, tp.min_transition_duration, tp.ramp_fraction,
-                                     tp.max_com_acceleration)
+    times = interp.time_transition(ctx.robot.model, path, stance, ctx.settings.timing)
     return Transition(primitive=prim.type, moving_limb=prim.limb if prim.is_limb else "", stance=stance,
                       target_stance=target, times=times, path=np.array(path))
 

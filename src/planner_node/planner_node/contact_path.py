@@ -391,9 +391,6 @@ def _transition(ctx: A.AdaptContext, primitive: str, limb: str, stance: Stance, 
 
     from . import interpolation as interp
 
-    tp = ctx.settings.timing
-    times = interp.time_parameterize(ctx.robot.model, path, tp.max_joint_speed, tp.max_base_speed,
-                                     tp.max_base_angular_speed, tp.min_transition_duration, tp.ramp_fraction,
-                                     tp.max_com_acceleration)
+    times = interp.time_transition(ctx.robot.model, path, stance, ctx.settings.timing)
     return Transition(primitive=primitive, moving_limb=limb, stance=stance, target_stance=target, times=times,
                       path=np.array(path))

@@ -129,7 +129,7 @@ def projected_interpolation(
 def time_parameterize(model: pin.Model, path: Sequence[np.ndarray], max_joint_speed: float,
                       max_base_speed: float, max_base_angular_speed: float,
                       min_duration: float = 0.0, ramp_fraction: float = 0.0,
-                      max_com_acceleration: float = 0.0) -> np.ndarray:
+                      max_com_acceleration: float = 0.0, segment_scale: np.ndarray | None = None) -> np.ndarray:
     """Times [s] of the way-points so that no joint exceeds ``max_joint_speed`` [rad/s], the
     base ``max_base_speed`` [m/s] / ``max_base_angular_speed`` [rad/s] on any segment.
 
@@ -138,7 +138,8 @@ def time_parameterize(model: pin.Model, path: Sequence[np.ndarray], max_joint_sp
     least total duration of the path. ``max_com_acceleration`` [m/s^2] (0: no bound) bounds the
     horizontal acceleration of the centre of mass at every way-point, the path starting and ending
     at rest (:func:`bound_com_acceleration`): a quasi-static plan's ZMP then stays within
-    z_com / g * that bound of the CoM's ground projection.
+    z_com / g * that bound of the CoM's ground projection. ``segment_scale`` (one factor >= 1 per
+    segment, e.g. :func:`support_edge_factors`) lengthens segments after the ramps.
     """
     n = len(path)
     if n == 0:
@@ -154,12 +155,63 @@ def time_parameterize(model: pin.Model, path: Sequence[np.ndarray], max_joint_sp
         s = np.linspace(0.0, 1.0, n - 1)
         edge = np.minimum(s, 1.0 - s) / max(ramp_fraction, 1e-9)
         durations *= 1.0 + np.clip(1.0 - edge, 0.0, 1.0)
+    if segment_scale is not None and n > 1:
+        durations *= np.asarray(segment_scale, dtype=float)
     total = durations.sum()
     if total < min_duration:
         durations = (durations + (min_duration - total) / max(n - 1, 1)) if total <= 0 else durations * (min_duration / total)
     if max_com_acceleration > 0.0 and n > 1:
         durations = bound_com_acceleration(model, path, durations, max_com_acceleration)
     return np.concatenate([[0.0], np.cumsum(durations)])
+
+
+def support_edge_factors(model: pin.Model, path: Sequence[np.ndarray], stance, margin: float,
+                         max_factor: float) -> np.ndarray | None:
+    """Per-segment slow-down factors (>= 1) of a path whose stance the flat soles carry alone (no
+    grasp, every hold a sole with an area): where the centre of mass comes closer than ``margin``
+    [m] to a heel or toe edge of the soles' convex hull (the hull edges facing along the soles'
+    length), the two segments around that way-point take ``margin / distance`` times longer, at
+    most ``max_factor``. The controller's CoM lags its reference and overshoots by a share of the
+    CoM's speed: near the heels that is enough for G1 to tip over them (the vertical ladder's mount,
+    the CoM planned 2.6 cm from the heels, fell at full speed and was executed slowed there).
+    None: nothing to slow (a grasp, a contact without an area, or no way-point that near)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    if margin <= 0.0 or len(path) < 2 or not stance.holds or any(h.bilateral for h in stance.holds):
+        return None
+    points, axis = [], np.zeros(2)
+    for h in stance.holds:
+        xy = h.positions[:, :2]
+        if not h.robot_surface.endswith("sole") or len(xy) < 3:
+            return None
+        _, s, vt = np.linalg.svd(xy - xy.mean(axis=0))
+        if s[-1] < 1e-3:  # a line contact (a sole on a round rung): no heel edge to keep off
+            return None
+        axis += vt[0] if vt[0] @ axis >= 0.0 else -vt[0]  # the sole's length: its long axis
+        points.append(xy)
+    axis /= max(float(np.linalg.norm(axis)), 1e-12)
+    try:
+        hull = ConvexHull(np.vstack(points))
+    except QhullError:
+        return None
+    eq = hull.equations[np.abs(hull.equations[:, :2] @ axis) > np.cos(np.pi / 4)]  # heel and toe edges
+    data = model.createData()
+    com = np.array([pin.centerOfMass(model, data, np.asarray(q, dtype=float))[:2] for q in path])
+    distance = -np.max(com @ eq[:, :2].T + eq[:, 2], axis=1)
+    factor = np.clip(margin / np.maximum(distance, 1e-3), 1.0, max_factor)
+    if factor.max() <= 1.0:
+        return None
+    return np.maximum(factor[:-1], factor[1:])
+
+
+def time_transition(model: pin.Model, path: Sequence[np.ndarray], stance, timing) -> np.ndarray:
+    """Way-point times [s] of one transition's path held in ``stance`` under ``timing``
+    (:class:`planner_node.settings.TimingParams`): the speed limits, ramps and least duration of
+    :func:`time_parameterize`, slowed near the soles' heel and toe edges (:func:`support_edge_factors`)."""
+    scale = support_edge_factors(model, path, stance, timing.edge_slowdown_margin, timing.edge_slowdown_max)
+    return time_parameterize(model, path, timing.max_joint_speed, timing.max_base_speed,
+                             timing.max_base_angular_speed, timing.min_transition_duration, timing.ramp_fraction,
+                             timing.max_com_acceleration, scale)
 
 
 def bound_com_acceleration(model: pin.Model, path: Sequence[np.ndarray], durations: np.ndarray,

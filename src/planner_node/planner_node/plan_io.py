@@ -213,13 +213,12 @@ def cached_plan(key: str, compute) -> tuple[WholeBodyPlan | None, dict]:
 
 def retimed(plan: WholeBodyPlan, model: Any, timing: Any) -> WholeBodyPlan:
     """The same paths, each transition's way-points timed again under ``timing``
-    (:class:`planner_node.settings.TimingParams`: joint / base speed limits, ramps, least duration),
-    as the planner times them (:func:`planner_node.interpolation.time_parameterize`)."""
+    (:class:`planner_node.settings.TimingParams`: joint / base speed limits, ramps, least duration,
+    the soles' edges), as the planner times them (:func:`planner_node.interpolation.time_transition`)."""
     import dataclasses
 
-    from .interpolation import time_parameterize
+    from .interpolation import time_transition
 
-    transitions = [dataclasses.replace(t, times=time_parameterize(
-        model, list(t.path), timing.max_joint_speed, timing.max_base_speed, timing.max_base_angular_speed,
-        timing.min_transition_duration, timing.ramp_fraction, timing.max_com_acceleration)) for t in plan.transitions]
+    transitions = [dataclasses.replace(t, times=time_transition(model, list(t.path), t.stance, timing))
+                   for t in plan.transitions]
     return dataclasses.replace(plan, transitions=transitions)
