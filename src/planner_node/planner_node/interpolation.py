@@ -168,7 +168,7 @@ def time_parameterize(model: pin.Model, path: Sequence[np.ndarray], max_joint_sp
 def support_edge_factors(model: pin.Model, path: Sequence[np.ndarray], stance, margin: float,
                          max_factor: float) -> np.ndarray | None:
     """Per-segment slow-down factors (>= 1) of a path whose stance the flat soles carry alone (no
-    grasp, every hold a sole with an area): where the centre of mass comes closer than ``margin``
+    grasp, every hold a foot's sole with an area): where the centre of mass comes closer than ``margin``
     [m] to a heel or toe edge of the soles' convex hull (the hull edges facing along the soles'
     length), the two segments around that way-point take ``margin / distance`` times longer, at
     most ``max_factor``. The controller's CoM lags its reference and overshoots by a share of the
@@ -177,12 +177,14 @@ def support_edge_factors(model: pin.Model, path: Sequence[np.ndarray], stance, m
     None: nothing to slow (a grasp, a contact without an area, or no way-point that near)."""
     from scipy.spatial import ConvexHull, QhullError
 
+    from climb_core.contact import limb_type
+
     if margin <= 0.0 or len(path) < 2 or not stance.holds or any(h.bilateral for h in stance.holds):
         return None
     points, axis = [], np.zeros(2)
     for h in stance.holds:
         xy = h.positions[:, :2]
-        if not h.robot_surface.endswith("sole") or len(xy) < 3:
+        if limb_type(h.limb) != "foot" or len(xy) < 3:
             return None
         _, s, vt = np.linalg.svd(xy - xy.mean(axis=0))
         if s[-1] < 1e-3:  # a line contact (a sole on a round rung): no heel edge to keep off
