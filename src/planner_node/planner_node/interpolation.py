@@ -197,6 +197,8 @@ def support_edge_factors(model: pin.Model, path: Sequence[np.ndarray], stance, m
     except QhullError:
         return None
     eq = hull.equations[np.abs(hull.equations[:, :2] @ axis) > np.cos(np.pi / 4)]  # heel and toe edges
+    if len(eq) == 0:
+        return None
     data = model.createData()
     com = np.array([pin.centerOfMass(model, data, np.asarray(q, dtype=float))[:2] for q in path])
     distance = -np.max(com @ eq[:, :2].T + eq[:, 2], axis=1)
