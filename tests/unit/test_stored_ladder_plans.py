@@ -2,7 +2,8 @@
 --scenario vertical --steps 2 --out ...``; its approach and mount executed by
 tests/sim/test_vertical_mount.py) re-checked independently of the planner: every configuration by
 the frozen feasibility check, the feet ending on rung 2, and the timing the planner gives it today
-(the first hand's mount slowed where the CoM nears the heels: ``timing.edge_slowdown_margin``)."""
+(the first hand's mount slowed where the CoM nears the heels: ``timing.edge_slowdown_margin``, set by
+config/ladders/vertical.yaml)."""
 from __future__ import annotations
 
 import pathlib
@@ -33,7 +34,8 @@ def test_the_stored_vertical_plan_passes_the_frozen_check_and_ends_on_rung_2(g1)
 
 def test_the_stored_vertical_plan_is_timed_as_the_planner_times_it_with_the_mount_slowed(g1):
     plan, _ = plan_io.load_plan(STORED)
-    timing = load_settings().timing
+    timing = scenario_settings(load_settings(), load_scenario("vertical")).timing  # the ladder file's slow-down
+    assert timing.edge_slowdown_margin > 0.0 and load_settings().timing.edge_slowdown_margin == 0.0
     for t in plan.transitions:
         np.testing.assert_allclose(t.times, time_transition(g1.model, list(t.path), t.stance, timing), atol=1e-6)
     mount = next(t for t in plan.transitions if t.primitive == "mount")  # the first hand's: the soles alone

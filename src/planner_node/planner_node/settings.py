@@ -141,10 +141,11 @@ class TimingParams:
     max_com_acceleration: float = param(0.0, unit="m/s^2", min=0.0, description=(
         "largest horizontal acceleration of the centre of mass at a way-point, each transition from rest to rest "
         "(the ZMP within z_com / g times it of the CoM; 0: no bound)"))
-    edge_slowdown_margin: float = param(0.045, unit="m", min=0.0, max=0.1, description=(
+    edge_slowdown_margin: float = param(0.0, unit="m", min=0.0, max=0.1, description=(
         "a transition the flat soles carry alone (no grasp) slows down by margin / distance where its CoM comes "
-        "closer than this to the heel or toe edge of the soles' hull (G1 fell backwards over its heels mounting "
-        "the vertical ladder at full speed, the CoM planned 2.6 cm from them, and mounted slowed there; 0: off)"))
+        "closer than this to the heel or toe edge of the soles' hull (0: off; the vertical and caged ladders set "
+        "0.045 in their files: G1 fell backwards over its heels mounting the vertical ladder at full speed, the "
+        "CoM planned 2.6 cm from them, and mounted slowed there)"))
     edge_slowdown_max: float = param(2.0, unit="-", min=1.0, max=5.0, description=(
         "largest slow-down factor of edge_slowdown_margin"))
 
