@@ -82,18 +82,10 @@ def task_runner(execute: bool):
     return run_task
 
 
-def _die_with_the_sweep() -> None:
-    """Pool worker initializer: the kernel sends the worker SIGKILL when the sweep process dies
-    (also on SIGTERM or SIGKILL of the sweep, which would otherwise leave its workers planning for
-    an hour with nobody to take their rows)."""
-    from climb_core.process import die_with_parent
-
-    die_with_parent()
-
-
 def run_local(tasks, workers: int, progress: Progress, done, execute: bool = False) -> list[dict]:
     """``done(row)`` is called in this process as each row arrives (stamps and journals it).
-    The workers die with this process (:func:`_die_with_the_sweep`)."""
+    The workers die with this process, SIGKILL included (:func:`climb_core.process.die_with_parent`:
+    otherwise a killed sweep leaves them planning for an hour with nobody to take their rows)."""
     run_task = task_runner(execute)
 
     rows = []
@@ -105,8 +97,10 @@ def run_local(tasks, workers: int, progress: Progress, done, execute: bool = Fal
     import concurrent.futures as cf
     import multiprocessing as mp
 
+    from climb_core.process import die_with_parent
+
     with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                                initializer=_die_with_the_sweep) as pool:
+                                initializer=die_with_parent) as pool:
         futures = [pool.submit(run_task, t) for t in tasks]
         for fut in cf.as_completed(futures):
             rows.append(done(fut.result()))
