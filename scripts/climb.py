@@ -4,6 +4,11 @@
 
     scripts/climb.py --scenario default --robot g1 --rungs 2 --mode qp --out out/climb
                      [--graph processes|composed|inprocess] [--seed 0] [--no-bag] [--timeout 1200]
+    scripts/climb.py --plan tests/data/vertical_plan.json [--max-transitions 7] --out out/vertical
+
+--plan FILE: execute a plan made before (scripts/plan.py --out FILE; planner_node.plan_io JSON)
+instead of planning one, in process; --scenario and --rungs default to the plan's, the robot starts in
+the fixture that holds the plan's first stance, and a replan goes to the planner as usual.
 
 --scenario (alias --ladder): a name in config/ladders/ or config/scenes/, or a scenario file
 (shared/specs/ladder_spec.md, scene_spec.md). Without --strategy the strategy is chosen for the
@@ -43,15 +48,21 @@ GRAPHS = ("processes", "composed", "inprocess")
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scenario", "--ladder", dest="scenario", default="default",
-                    help="scenario: name in config/ladders/ or config/scenes/, or a YAML file (--ladder: alias)")
+    ap.add_argument("--scenario", "--ladder", dest="scenario", default=None,
+                    help="scenario: name in config/ladders/ or config/scenes/, or a YAML file (--ladder: alias; "
+                         "default: default, or the --plan's)")
     ap.add_argument("--robot", default="g1", help="robot config name (config/robots/<name>.yaml)")
-    ap.add_argument("--rungs", type=int, default=2, help="climbing cycles after the mount (feet end on rung N)")
+    ap.add_argument("--rungs", type=int, default=None,
+                    help="climbing cycles after the mount (feet end on rung N; default: 2, or the --plan's)")
     ap.add_argument("--mode", default="qp", help="controller mode: qp | compliance")
     ap.add_argument("--out", default="out/climb", help="output directory (bag, report / plots, logs)")
-    ap.add_argument("--graph", default="processes", choices=GRAPHS,
+    ap.add_argument("--graph", default=None, choices=GRAPHS,
                     help="processes (default): a process per node; composed: bridge + controller in one "
-                         "sim_graph process; inprocess: no ROS")
+                         "sim_graph process; inprocess: no ROS (the only one with --plan)")
+    ap.add_argument("--plan", default="", metavar="FILE",
+                    help="execute this stored plan (scripts/plan.py --out) instead of planning; in process")
+    ap.add_argument("--max-transitions", type=int, default=None, metavar="K",
+                    help="execute only the plan's first K transitions (e.g. a stored plan's mount)")
     ap.add_argument("--seed", type=int, default=None, help="planner random seed (default: config/planner.yaml)")
     ap.add_argument("--no-bag", action="store_true", help="do not record a bag")
     ap.add_argument("--plan-cycles", type=int, default=None,
@@ -80,7 +91,24 @@ def _request(args):
     return ClimbRequest(ladder=args.scenario, robot=args.robot, rungs=args.rungs, mode=args.mode,
                         out_dir=args.out, seed=args.seed, bag=not args.no_bag, snapshots=args.snapshots,
                         descend=args.descend, plan_cycles=args.plan_cycles, command_delay_ticks=args.command_delay,
-                        strategy=args.strategy, start_posture=args.start_posture)
+                        strategy=args.strategy, start_posture=args.start_posture,
+                        max_transitions=args.max_transitions)
+
+
+def stored_plan_defaults(args) -> None:
+    """--plan: the graph is this process, --scenario and --rungs the plan's unless given
+    (SpecError naming the option or the plan's field)."""
+    from climb_core.errors import SpecError
+    from planner_node.plan_io import load_plan
+
+    if args.graph not in (None, "inprocess"):
+        raise SpecError("--plan", f"a stored plan is executed in process (--graph inprocess), not --graph {args.graph}")
+    args.graph = "inprocess"
+    plan, metadata = load_plan(args.plan)
+    args.scenario = args.scenario or plan.environment
+    if args.rungs is None:
+        steps = metadata.get("steps")
+        args.rungs = int(steps) if isinstance(steps, int) and steps >= 1 else 2
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -88,6 +116,16 @@ def main(argv: list[str] | None = None) -> int:
     from climb_core.errors import ClimbError, SpecError
     from climb_coordinator.session import base_summary, check_request, with_chosen_strategy
 
+    try:
+        if args.plan:
+            stored_plan_defaults(args)
+    except SpecError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        print(json.dumps({"success": False, "failure_reason": f"spec: {exc}", "plan_file": args.plan}))
+        return 2
+    args.graph = args.graph or "processes"
+    args.scenario = args.scenario or "default"
+    args.rungs = 2 if args.rungs is None else args.rungs
     req = with_chosen_strategy(_request(args))
     summary = base_summary(req)
     try:
@@ -131,10 +169,11 @@ def check_scene(source: str, summary: dict, strategy: str) -> None:
 
 def run_inprocess(args, req, summary: dict) -> int:
     from climb_core.errors import ClimbError, SpecError
-    from climb_coordinator.climb import run_climb
+    from climb_coordinator.climb import run_climb, run_stored_plan
 
+    say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     try:
-        result = run_climb(req, on_progress=lambda m: print(m, file=sys.stderr, flush=True))
+        result = run_stored_plan(req, args.plan, on_progress=say) if args.plan else run_climb(req, on_progress=say)
     except SpecError as exc:
         print(f"error: {exc}", file=sys.stderr)
         summary["failure_reason"] = f"spec: {exc}"
@@ -156,6 +195,8 @@ def run_inprocess(args, req, summary: dict) -> int:
     finally:
         result.close()
     result.summary["graph"] = "inprocess"
+    if args.plan:
+        result.summary["plan_file"] = args.plan
     print(json.dumps(result.summary))
     return 0 if result.summary["success"] else 1
 

@@ -30,19 +30,18 @@ HEEL_CLEARANCE_M = 0.005  # [m] least measured CoM distance in front of the heel
 
 def test_the_vertical_ladder_is_mounted_from_the_ground_without_tipping_over_the_heels(tmp_path):
     from climb_core.contact import limb_type
-    from climb_core.ladder import load_scenario
-    from climb_core.robot import load_robot
-    from climb_coordinator.climb import ClimbRequest, StoredPlanSource, execute
+    from climb_coordinator.climb import ClimbRequest, run_stored_plan
     from climb_coordinator.settings import load_climb_settings
+    from planner_node.plan_io import load_plan
 
     settings = load_climb_settings()
-    plans = StoredPlanSource(STORED_PLAN, load_robot("g1"), settings)
-    plan = plans.plan_
+    plan, _ = load_plan(STORED_PLAN)
     assert plan.environment == "vertical"
     assert [t.primitive for t in plan.transitions[MOUNT_END - 2:MOUNT_END]] == ["mount", "mount"]
+    # what `scripts/climb.py --plan tests/data/vertical_plan.json --max-transitions 7 --command-delay 1` runs
     req = ClimbRequest(ladder="vertical", robot="g1", rungs=2, mode="qp", out_dir=tmp_path, strategy="primitives",
                        command_delay_ticks=1, max_transitions=MOUNT_END)
-    result = execute(req, plans, settings, load_scenario("vertical"), "standing")
+    result = run_stored_plan(req, STORED_PLAN, settings)
     try:
         s = result.summary
         assert s["success"], s["failure_reason"]

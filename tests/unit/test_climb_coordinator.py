@@ -86,3 +86,56 @@ def test_climb_script_bad_spec_exits_2_without_traceback(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.startswith("error: source:") and "Traceback" not in proc.stderr
     assert proc.stdout.strip().splitlines()[-1].startswith("{")
+
+
+STORED_VERTICAL = ROOT / "tests" / "data" / "vertical_plan.json"
+
+
+@pytest.mark.parametrize("args, field", [
+    (["--plan", "{missing}"], "plan: file"),
+    (["--plan", "{garbage}"], "plan: "),
+    (["--plan", "{no_joints}"], "plan.joint_names: required"),
+    (["--plan", str(STORED_VERTICAL), "--graph", "composed"], "--plan: a stored plan is executed in process"),
+    (["--plan", str(STORED_VERTICAL), "--scenario", "default"], "plan.environment: "),
+])
+def test_climb_script_refuses_a_stored_plan_it_cannot_execute_with_exit_2(tmp_path, args, field):
+    import json
+
+    files = {"missing": tmp_path / "none.json", "garbage": tmp_path / "garbage.json",
+             "no_joints": tmp_path / "no_joints.json"}
+    files["garbage"].write_text("{not json")
+    doc = json.loads(STORED_VERTICAL.read_text())
+    del doc["joint_names"]
+    files["no_joints"].write_text(json.dumps(doc))
+    args = [a.format(**{k: str(v) for k, v in files.items()}) for a in args]
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "climb.py"), "--out", str(tmp_path / "out"),
+                           "--no-bag", "--no-plots", *args], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.startswith(f"error: {field}") and "Traceback" not in proc.stderr, proc.stderr
+    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert summary["success"] is False and field in summary["failure_reason"]
+
+
+def test_a_stored_plan_starts_in_the_fixture_that_holds_its_first_stance():
+    from climb_core import fixtures
+    from climb_core.contact import Stance
+    from climb_core.ladder import load_scenario
+    from climb_core.robot import load_robot
+    from climb_coordinator.climb import stored_plan_fixture
+    from planner_node.plan_io import load_plan
+
+    robot, scenario = load_robot("g1"), load_scenario("vertical")
+    plan, _ = load_plan(STORED_VERTICAL)
+    assert stored_plan_fixture(plan, robot, scenario) == "standing"
+    stance, _ = fixtures.get("ladder_4_contacts", robot, "default")
+    from dataclasses import replace
+
+    on_ladder = replace(plan, environment="default", initial_stance=stance)
+    assert stored_plan_fixture(on_ladder, robot, load_scenario("default")) == "ladder_4_contacts"
+    three = Stance(holds=tuple(h for h in stance.holds if h.limb != "left_foot"))
+    assert stored_plan_fixture(replace(on_ladder, initial_stance=three), robot,
+                               load_scenario("default")) == "ladder_no_left_foot"
+    one_hand = Stance(holds=tuple(h for h in stance.holds if h.limb == "right_hand"))
+    with pytest.raises(SpecError) as err:  # no fixture hangs from one hand
+        stored_plan_fixture(replace(on_ladder, initial_stance=one_hand), robot, load_scenario("default"))
+    assert err.value.field == "plan.initial_stance"

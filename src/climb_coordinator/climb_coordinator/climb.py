@@ -49,7 +49,8 @@ from .settings import ClimbSettings, apply_planner_overrides, load_climb_setting
 
 __all__ = ["MODES", "ClimbRequest", "ClimbResult", "base_summary", "validate", "check_request", "plan_duration",
            "run_climb", "execute", "clip_plan_to_limits", "snapshot", "LibraryPlanSource", "InProcessExecutor",
-           "BackendJudge", "SearchPlanSource", "GivenPlanSource", "StoredPlanSource", "STOP_STATES"]
+           "BackendJudge", "SearchPlanSource", "GivenPlanSource", "StoredPlanSource", "STOP_STATES", "run_stored_plan",
+           "stored_plan_fixture"]
 
 
 @dataclass
@@ -219,13 +220,13 @@ class GivenPlanSource:
 
 class StoredPlanSource(GivenPlanSource):
     """A :class:`GivenPlanSource` of a plan made before (``planner_node.plan_io`` JSON, e.g.
-    scripts/plan.py --out), no replan."""
+    scripts/plan.py --out); replans from ``replans`` (None: none)."""
 
-    def __init__(self, path, robot, cs: ClimbSettings):
+    def __init__(self, path, robot, cs: ClimbSettings, replans=None):
         from planner_node.plan_io import load_plan
 
         plan, self.metadata = load_plan(path)
-        super().__init__(plan, robot, cs)
+        super().__init__(plan, robot, cs, replans)
 
 
 class BackendJudge:
@@ -419,29 +420,73 @@ def tracking_summary(controller) -> dict:
 def run_climb(req: ClimbRequest, settings: ClimbSettings | None = None,
               on_progress: Callable[[str], None] | None = None) -> ClimbResult:
     """Plan, execute and judge one climb. Raises SpecError on a bad request or ladder spec."""
+    req = with_chosen_strategy(req)
+    validate(req)
+    cs = settings or load_climb_settings()
+    scenario, plans, posture = _planning(req, cs)
+    return execute(req, plans, cs, scenario, posture, on_progress or (lambda m: None))
+
+
+def run_stored_plan(req: ClimbRequest, path, settings: ClimbSettings | None = None,
+                    on_progress: Callable[[str], None] | None = None) -> ClimbResult:
+    """Execute and judge a plan made before (``planner_node.plan_io`` JSON: scripts/plan.py --out,
+    tests/data/*.json) instead of planning one; replans (``replan_needed``, ``plan_cycles``) go to the
+    planner as in :func:`run_climb`. The request's ladder must be the plan's environment and its robot
+    the plan's; the robot starts in the fixture whose stance is the plan's initial stance
+    (:func:`stored_plan_fixture`) unless ``req.start_posture`` names one. SpecError (naming the field)
+    on a plan that does not fit the request."""
+    from climb_core.robot import load_robot
+
+    req = with_chosen_strategy(req)
+    validate(req)
+    cs = settings or load_climb_settings()
+    scenario, replans, _ = _planning(req, cs)
+    robot = load_robot(req.robot)
+    plans = StoredPlanSource(path, robot, cs, replans=replans)
+    if plans.plan_.environment != scenario.name:
+        raise SpecError("plan.environment", f"{path} was planned on {plans.plan_.environment!r}, "
+                                            f"the request's scenario is {scenario.name!r}")
+    posture = req.start_posture or stored_plan_fixture(plans.plan_, robot, scenario)
+    return execute(req, plans, cs, scenario, posture, on_progress or (lambda m: None))
+
+
+def stored_plan_fixture(plan: WholeBodyPlan, robot, scenario) -> str:
+    """The start fixture (climb_core.fixtures) whose stance holds the plan's initial stance: the same
+    limbs on the same surfaces (SpecError when none does: the simulator could not start there)."""
+    from climb_core import fixtures
+    from climb_core.errors import InfeasibleError
+
+    wanted = sorted((h.limb, h.env_surface) for h in plan.initial_stance.holds)
+    for name in fixtures.NAMES:
+        try:
+            stance, _ = fixtures.get(name, robot, scenario)
+        except (SpecError, InfeasibleError):  # a fixture this scenario has no place for
+            continue
+        if sorted((h.limb, h.env_surface) for h in stance.holds) == wanted:
+            return name
+    raise SpecError("plan.initial_stance", f"no start fixture holds {wanted} (fixtures: {', '.join(fixtures.NAMES)})")
+
+
+def _planning(req: ClimbRequest, cs: ClimbSettings):
+    """(scenario, plan source, start fixture) of a request: the DARPA-tasks search or the
+    primitive planner, with the climb's and the scenario's planner settings."""
     from climb_core.environment import build_environment
     from climb_core.ladder import load_scenario
     from climb_core.robot import load_robot
     from planner_node.primitives import load_library
     from planner_node.settings import load_settings, settings_for_scenario
 
-    req = with_chosen_strategy(req)
-    validate(req)
-    cs = settings or load_climb_settings()
     scenario = load_scenario(req.ladder)
     env = build_environment(scenario)
     robot = load_robot(req.robot)
     psettings = settings_for_scenario(apply_planner_overrides(load_settings(), cs.planner_overrides), scenario,
                                       scene_overrides=cs.scene_planner_overrides)
-    p = psettings.planning
     if req.strategy == "search":
         posture = req.start_posture or "standing"
-        plans = SearchPlanSource(req, robot, env, psettings, cs, posture)
-        return execute(req, plans, cs, scenario, posture, on_progress or (lambda m: None))
+        return scenario, SearchPlanSource(req, robot, env, psettings, cs, posture), posture
+    p = psettings.planning
     library = load_library(robot.config.name, p.strategy, p.primitives_dir, nq=robot.model.nq)
-    plans = LibraryPlanSource(req, robot, env, psettings, cs)
-    return execute(req, plans, cs, scenario, req.start_posture or library.initial_fixture,
-                   on_progress or (lambda m: None))
+    return scenario, LibraryPlanSource(req, robot, env, psettings, cs), req.start_posture or library.initial_fixture
 
 
 def execute(req: ClimbRequest, plans, cs: ClimbSettings, scenario, initial_fixture: str,

@@ -341,7 +341,7 @@ class TransferState(State):
         armed = self.tared_at is not None and ctx.time - self.tared_at >= g.settle_time_s
         if armed and ctx.ft_force_change(ctx.moving_limb) > ctx.contact_threshold(ctx.moving_limb):
             ctx.path.freeze_limb()
-            ctx.emit("contact_detected", limb=ctx.moving_limb, early=not done, state=self.name)
+            ctx.emit("contact_detected", limb=ctx.moving_limb, early=not done, state=self.name, by="force")
             return "contact"
         return "path_end" if done else None
 

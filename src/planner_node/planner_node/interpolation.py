@@ -175,12 +175,12 @@ def support_edge_factors(model: pin.Model, path: Sequence[np.ndarray], stance, m
     CoM's speed: near the heels that is enough for G1 to tip over them (the vertical ladder's mount,
     the CoM planned 2.6 cm from the heels, fell at full speed and was executed slowed there).
     None: nothing to slow (a grasp, a contact without an area, or no way-point that near)."""
-    from scipy.spatial import ConvexHull, QhullError
+    if margin <= 0.0 or len(path) < 2 or not stance.holds or any(h.bilateral for h in stance.holds):
+        return None
+    from scipy.spatial import ConvexHull, QhullError  # (here: ~0.5 s to import, only when on)
 
     from climb_core.contact import limb_type
 
-    if margin <= 0.0 or len(path) < 2 or not stance.holds or any(h.bilateral for h in stance.holds):
-        return None
     points, axis = [], np.zeros(2)
     for h in stance.holds:
         xy = h.positions[:, :2]

@@ -106,6 +106,10 @@ def plan_from_dict(d: dict) -> tuple[WholeBodyPlan, dict]:
         raise SpecError("plan.format", f"must be {FORMAT!r}")
     if int(d.get("version", -1)) != VERSION:
         raise SpecError("plan.version", f"must be {VERSION}, got {d.get('version')!r}")
+    for key, kind in (("robot", str), ("environment", str), ("joint_names", list), ("initial_stance", dict),
+                      ("transitions", list)):
+        if not isinstance(d.get(key), kind):
+            raise SpecError(f"plan.{key}", f"required, a {'string' if kind is str else kind.__name__}")
     joint_names = [str(j) for j in d["joint_names"]]
     nq = 7 + len(joint_names)
     transitions = [transition_from_dict(t, nq, f"plan.transitions[{i}]") for i, t in enumerate(d["transitions"])]
