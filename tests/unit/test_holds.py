@@ -148,6 +148,32 @@ def test_grasp_target_puts_the_grasp_cylinder_on_the_rung_axis(g1, ladder, limb)
     assert T_frame[2, 3] < T[2, 3]
 
 
+@pytest.mark.parametrize("pitch_deg", [10.0, -5.0])
+def test_a_sole_pitched_on_a_round_rung_touches_it_where_it_is_tangent_and_keeps_its_pitch(g1, ladder, pitch_deg):
+    """Toes up by the pitch: the points lie on the rung where its normal leans back toward the robot
+    (-x: the default ladder faces +x) by the same angle, the sole's own normal is the contact normal,
+    and the hold remembers its pitch: hold_target rebuilds the pitched pose with default parameters."""
+    import dataclasses
+
+    rung = ladder.rung(1)
+    params = dataclasses.replace(holds.HoldParams(), foot_on_rung_pitch_deg=pitch_deg)
+    hold = holds.make_hold(g1, ladder, "left_foot", "rung_1", s=0.1, params=params)
+    phi = math.radians(pitch_deg)
+    n = np.array([-math.sin(phi), 0.0, math.cos(phi)])
+    np.testing.assert_allclose(hold.normals, [n, n], atol=1e-12)
+    np.testing.assert_allclose(_distance_to_axis(hold.positions, rung), rung.radius, atol=1e-12)
+    a, p0 = _axis(rung)
+    np.testing.assert_allclose((hold.positions - p0) - np.outer((hold.positions - p0) @ a, a),
+                               [rung.radius * n] * 2, atol=1e-12)
+    T = holds.surface_target_pose(g1, ladder, "left_foot", "rung_1", 0.1, params=params)[0]
+    np.testing.assert_allclose(T[:3, 2], -n, atol=1e-12)  # the sole's normal (into the rung)
+    assert T[2, 0] == pytest.approx(math.sin(phi), abs=1e-12)  # the toes up by the pitch
+    assert holds.rung_pitch_deg(hold, ladder) == pytest.approx(pitch_deg, abs=1e-9)
+    np.testing.assert_allclose(holds.hold_target(g1, ladder, hold).T_world_surface, T, atol=1e-12)
+    level = holds.make_hold(g1, ladder, "left_foot", "rung_1", s=0.1)
+    assert holds.rung_pitch_deg(level, ladder) == pytest.approx(0.0, abs=1e-12)
+
+
 def test_hold_target_round_trips_make_hold(g1, ladder):
     for limb, surface, s in (("left_hand", "rung_5", 0.15), ("right_foot", "rung_1", -0.12)):
         hold = holds.make_hold(g1, ladder, limb, surface, s)

@@ -1,6 +1,6 @@
 """The vertical ladder's stored whole-body plan (tests/data/vertical_plan.json, ``scripts/plan.py
---scenario vertical --steps 2 --out ...``; its approach and mount executed by
-tests/sim/test_vertical_mount.py) re-checked independently of the planner: every configuration by
+--scenario vertical --steps 2 --out ...`` with level feet on the rungs, before the pitched feet;
+the example of ``scripts/climb.py --plan``) re-checked independently of the planner: every configuration by
 the frozen feasibility check, the feet ending on rung 2, and the timing the planner gives it today
 (the first hand's mount slowed where the CoM nears the heels: ``timing.edge_slowdown_margin``, set by
 config/ladders/vertical.yaml)."""

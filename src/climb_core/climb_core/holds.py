@@ -20,10 +20,14 @@ Geometry (all world frame):
   corners / 2 points on the top line), the palm's normal against the surface; kinds ``palm_flat``
   and ``palm_cylinder``. Which surface a hand uses follows one rule, :func:`hand_surface_for`:
   the grasp on a bilateral surface, the palm on any other.
-- ``sole`` on a cylinder: 2 points on top of the rung (the rung line under the sole), spaced by
+- ``sole`` on a cylinder: 2 points on the rung (the rung line under the sole), spaced by
   the sole width, normals from the rung axis toward the foot; unilateral. Target: the sole
   tangent to the rung on its top line, its centre (shifted by ``foot_on_rung_offset`` along the
   foot's forward axis) above the axis, the foot pointing along the ladder's forward direction.
+  With ``foot_on_rung_pitch_deg`` the foot is pitched toes up by that angle about the rung axis
+  and touches the rung where its normal leans back toward the robot by the same angle (a flat
+  sole on a cylinder touches it along the line where it is tangent): the rung then pushes the foot
+  back as well as up. A hold keeps its pitch in its normals; :func:`hold_target` reads it there.
 - rectangular rungs (``is_bar``: a box of role ``rung``, the rect rungs of regular, vertical and
   A-frame ladders; ship and stairs treads stay flat surfaces). A hand ``grasp`` on a bar (any
   bilateral box) that fits the hand (:func:`check_grasp_fits`: with the palm on the bar's face
@@ -51,6 +55,7 @@ of the palm toward the grasped axis), grasp cylinder axis = ``ContactSurface.axi
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -74,6 +79,11 @@ class HoldParams:
     foot_on_rung_offset: float = param(0.0, unit="m", description=(
         "sole centre shift along the foot's forward axis from the rung's top line (positive: "
         "the heel moves toward the ladder)"))
+    foot_on_rung_pitch_deg: float = param(0.0, unit="deg", min=-30.0, max=30.0, description=(
+        "pitch of a sole on a round rung about the rung axis, toes up: the flat sole is tangent to the "
+        "rung where the rung's normal leans this far back toward the robot, so the rung pushes the foot "
+        "back as well as up (a robot hanging behind a steep rung needs that push; 0 = the sole level on "
+        "the rung's top line)"))
     foot_on_rung_spacing: float = param(0.0, unit="m", min=0.0, description=(
         "distance between the 2 points of a foot on a cylindrical rung (the 2 pairs of corners on a "
         "rect rung); 0 = the sole width"))
@@ -403,6 +413,8 @@ def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: f
         n = _top_normal(a)
         fwd = _perp(forward, n)
         fwd = _unit(_perp(fwd, a)) if np.linalg.norm(_perp(fwd, a)) > 1e-9 else _unit(np.cross(a, n))
+        if sf.shape == "cylinder" and rs.kind == "sole" and params.foot_on_rung_pitch_deg:
+            n, fwd = _pitched(n, fwd, params.foot_on_rung_pitch_deg)
         centre = p0 + s * a + n * _top_height(sf) - fwd * params.foot_on_rung_offset
         R = _frame_from_zx(-sign * n, fwd)
         return _pose(R, centre), (f"{rs.kind}_cylinder" if sf.shape == "cylinder" else "sole_bar")
@@ -426,6 +438,26 @@ def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: f
         R = _frame_from_zx(-sign * n, heading)
         return _pose(R, centre), f"{rs.kind}_flat"
     raise SpecError("hold.env_surface", f"cannot stand on a {sf.shape} ({surface_name!r})")
+
+
+def _pitched(n: np.ndarray, fwd: np.ndarray, pitch_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """(contact normal, sole forward) of a sole pitched ``pitch_deg`` toes up on a round rung whose
+    top normal is ``n`` (the foot pointing along ``fwd``): both turned about the rung axis, the normal
+    leaning back toward the robot (against ``fwd``)."""
+    c, s = math.cos(math.radians(pitch_deg)), math.sin(math.radians(pitch_deg))
+    return c * n - s * fwd, c * fwd + s * n
+
+
+def rung_pitch_deg(hold: Hold, env: Any) -> float:
+    """[deg] the toes-up pitch a sole hold on a round rung was made with (from its normals: 0 for a
+    level sole on the rung's top line)."""
+    sf = env_surface(env, hold.env_surface)
+    _, a = _cylinder_axis(sf)
+    n = _top_normal(a)
+    fwd = _unit(np.cross(a, n))
+    fwd = fwd if fwd @ ladder_forward(env) >= 0.0 else -fwd
+    m = np.asarray(hold.points[0].normal, float)
+    return math.degrees(math.atan2(-float(m @ fwd), float(m @ n)))
 
 
 def _axis_length(sf: Any) -> float:
@@ -512,6 +544,8 @@ def make_hold(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0
     if kind.endswith("_cylinder") or kind == "sole_bar":
         p0, a = _cylinder_axis(sf)
         n = _top_normal(a)
+        if kind == "sole_cylinder" and params.foot_on_rung_pitch_deg:  # where the pitched sole is tangent
+            n = -sole_normal_sign(robot, limb) * T[:3, 2]
         centre_line = p0 + a * float(a @ (T[:3, 3] - p0)) + n * _top_height(sf)
         _, width = sole_extent(rs)
         half = 0.5 * (params.foot_on_rung_spacing or width)
@@ -585,6 +619,8 @@ def hold_target(robot: Any, env: Any, hold: Hold, *, params: HoldParams | None =
     sf = env_surface(env, hold.env_surface)
     kind = hold_kind(robot, env, hold)
     params = params or HoldParams()
+    if kind == "sole_cylinder":  # the pitch the hold was made with, whatever the parameters say now
+        params = dataclasses.replace(params, foot_on_rung_pitch_deg=rung_pitch_deg(hold, env))
     if kind == "grasp" or kind.endswith("_cylinder") or kind == "sole_bar":
         p0, a = _cylinder_axis(sf)
         s = float(a @ (hold.centre - p0))

@@ -113,6 +113,9 @@ class AdaptContext:
         self.settings = settings
         self.frozen_cfg = feasibility_cfg or feasibility.load_config()
         p = settings.planning
+        if p.foot_on_rung_pitch_deg:  # the holds this plan makes (a hold keeps its pitch: the checks read it there)
+            self.frozen_cfg = dataclasses.replace(self.frozen_cfg, holds=dataclasses.replace(
+                self.frozen_cfg.holds, foot_on_rung_pitch_deg=p.foot_on_rung_pitch_deg))
         # the planner's own checks: the frozen check with planning margins on top
         self.check_cfg = feasibility.with_check(
             self.frozen_cfg,
