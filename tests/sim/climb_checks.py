@@ -18,6 +18,34 @@ def climb(mode: str, tmp_path, max_transitions=None, command_delay_ticks=0):
     return result, settings
 
 
+def climb_ladder_to(ladder: str, rungs: int, tmp_path):
+    """A ladder climbed ``rungs`` rungs in process as every climb plans and executes it (QP, one
+    period of actuation latency) and judged: success, :func:`check_run`, both feet standing on rung
+    ``rungs``, both hands closed on the surfaces the plan ends on. Returns (result, settings): the
+    caller closes the result."""
+    from climb_core.contact import limb_type
+    from climb_coordinator.climb import ClimbRequest, run_climb
+    from climb_coordinator.settings import load_climb_settings
+
+    settings = load_climb_settings()
+    result = run_climb(ClimbRequest(ladder=ladder, robot="g1", rungs=rungs, mode="qp", out_dir=tmp_path, seed=0,
+                                    command_delay_ticks=1), settings)
+    try:
+        s = result.summary
+        assert s["success"], s["failure_reason"]
+        feet, _ = check_run(result, settings, "qp")
+        assert feet == {"left_foot": rungs, "right_foot": rungs}, feet
+        for foot in ("left_foot", "right_foot"):
+            assert_standing_on(result.backend, foot, rungs)
+        last = result.plan.transitions[-1].target_stance
+        expected = {h.limb: h.env_surface for h in last.holds if limb_type(h.limb) == "hand"}
+        assert set(expected) == {"left_hand", "right_hand"} and s["grasps"] == expected, (s["grasps"], expected)
+    except BaseException:
+        result.close()
+        raise
+    return result, settings
+
+
 def check_run(result, settings, mode: str, allow_qp_failures: bool = False) -> dict:
     """Checks every executed climb must pass; returns the feet's rungs (simulator contacts).
     ``allow_qp_failures``: a blow's infeasible QPs, answered by the brace's relaxed solve, are
