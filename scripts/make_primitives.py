@@ -495,20 +495,27 @@ def _stored_sequences(sequences: dict, prims: dict, variant: bool) -> dict:
 
 def design_hold_config(cfg, design: dict):
     """The feasibility config with the design's hold placement: ``holds.foot_on_rung_offset`` [m]
-    (sole centre this far behind the rung, i.e. the ball of the foot on the rung) replaces the
-    config/feasibility.yaml value for the IK targets. The check itself accepts any sole placement
-    with the rung line under the sole polygon, so the frozen check still judges the result."""
+    (sole centre this far behind the rung, i.e. the ball of the foot on the rung) and
+    ``holds.foot_on_rung_pitch_deg`` [deg] (the sole pitched toes up on a round rung, tangent
+    where it touches) replace the config/feasibility.yaml values for the IK targets. The check
+    itself accepts any sole placement with the rung line under the sole polygon, and reads a
+    hold's pitch from its normals, so the frozen check still judges the result."""
     import dataclasses
 
     from climb_core.errors import SpecError
 
-    off = (design.get("holds") or {}).get("foot_on_rung_offset")
-    if off is None:
+    holds = design.get("holds") or {}
+    changes = {}
+    for key, lo, hi, unit in (("foot_on_rung_offset", -0.1, 0.1, "m"), ("foot_on_rung_pitch_deg", -30.0, 30.0, "deg")):
+        if holds.get(key) is None:
+            continue
+        value = float(holds[key])
+        if not lo <= value <= hi:
+            raise SpecError(f"design.holds.{key}", f"must be within [{lo:g}, {hi:g}] {unit}")
+        changes[key] = value
+    if not changes:
         return cfg
-    off = float(off)
-    if not -0.1 <= off <= 0.1:
-        raise SpecError("design.holds.foot_on_rung_offset", "must be within [-0.1, 0.1] m")
-    return dataclasses.replace(cfg, holds=dataclasses.replace(cfg.holds, foot_on_rung_offset=off))
+    return dataclasses.replace(cfg, holds=dataclasses.replace(cfg.holds, **changes))
 
 
 def _adapt_with(ctx, name: str, q, stance):

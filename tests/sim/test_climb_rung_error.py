@@ -65,12 +65,15 @@ def test_climb_planned_a_cycle_at_a_time_with_rung_2_three_centimetres_low_repla
         assert s["command_delay_ticks"] == 1
         assert result.controller.params.actuation_latency_s == pytest.approx(0.005)
         # two replans: the second cycle from the reached state (a few mm off the plan), then,
-        # after the left foot loaded rung 2, which it found within 5 mm of the truth, the rest
+        # after the left foot loaded rung 2, which it found within 3 mm of the truth, the rest
         cycle, replan = s["replans"]
         assert cycle["cycles"] == 1 and "failure_reason" not in cycle and "why" not in cycle, cycle
         assert cycle["start_projection_mm"] < 10.0
         assert replan["why"] == "contact_offset" and set(replan["surface_offset"]) == {"rung_2"}
-        assert replan["surface_offset"]["rung_2"][2] == pytest.approx(dz, abs=0.005)
+        # along the approach and across it (the line under the sole, located from the ankle F/T):
+        # with the feet pitched on the rung the approach is tilted 10 deg and alone put the rung
+        # 5 mm off along x (measured), where the right foot's plan then rolled it off the rung
+        assert replan["surface_offset"]["rung_2"] == pytest.approx([0.0, 0.0, dz], abs=0.003)
         c = result.controller
         (event,) = c.events_of("replan_needed")
         assert event.values == {"limb": "left_foot", "reason": "contact_offset"}

@@ -477,3 +477,22 @@ def test_a_single_contact_lost_in_a_brace_is_put_back_by_the_transition_that_pla
     assert not controller.events_of("replan_needed")
     assert set(controller.contacts) == {"left_foot", "right_foot", "left_hand", "right_hand"}
     assert controller.holds["right_hand"].env_surface == "rung_6"
+
+
+@pytest.mark.parametrize("limit, angle_deg, tilted", [(5.0, 6.0, True), (5.0, 4.0, False), (0.0, 30.0, False)])
+def test_a_foot_turned_past_the_tilt_limit_on_its_approach_counts_as_touching(ladder, limit, angle_deg, tilted):
+    """guarded.tilt_limit_deg: a foot on its guarded approach that pivots on what it touches
+    (its orientation off its target's by more than the limit) is a contact; 0 switches it off;
+    a hand's wrist is not judged by it."""
+    robot, env, stance, q, _ = ladder
+    params = load_controller_params(**{"collision.enabled": False, "guarded.tilt_limit_deg": limit})
+    controller = Controller(robot, params, env)
+    controller.reset(RobotState(0.0, q, np.zeros(robot.nv)), stance)
+    for limb, kind in (("left_foot", "foot"), ("right_hand", "hand")):
+        controller.moving_limb, controller.moving_kind = limb, kind
+        task = controller.contact_body_tasks[limb]
+        now = task.current(controller.wb.view)
+        task.set_target(pin.SE3(now.rotation @ pin.utils.rotate("y", np.radians(angle_deg)), now.translation))
+        assert controller.limb_tilted(limb) is (tilted and kind == "foot")
+        task.set_target(now)
+        assert controller.limb_tilted(limb) is False

@@ -23,6 +23,7 @@ good feed-forward. Never NaN, never garbage.
 """
 from __future__ import annotations
 
+import math
 import pathlib
 import time
 from dataclasses import dataclass, field
@@ -182,7 +183,8 @@ class Controller:
         self.replan_needed = False
         self.replan_reason = ""  # why the FSM is in replan_needed: contact_offset | no_contact
         #: the last placement's surface offset: (limb, surface, world translation [m] of the surface
-        #: from where the plan had it, along the approach; signed distance [m], < 0 early)
+        #: from where the plan had it: along the approach, plus across it where a line contact was
+        #: located on it; signed distance along the approach [m], < 0 early)
         self.placement_offset: tuple[str, str, np.ndarray, float] | None = None
         # outputs / bookkeeping
         self.grippers_out: list[GripperRequest] = []
@@ -460,6 +462,19 @@ class Controller:
         lag = float(creep @ (task.T_world_target.translation - task.current(self.wb.view).translation))
         return lag > g.stall_lag and self.ft.confirms_stall(limb, self.path.approach.get(limb))
 
+    def limb_tilted(self, limb: str) -> bool:
+        """A foot on its guarded approach or search turned more than ``guarded.tilt_limit_deg``
+        from its task's target orientation: it pivots on something it touches (the joints say so
+        before a noisy F/T does). Hands are left out (a grasp's wrist tracks less tightly)."""
+        limit = self.params.guarded.tilt_limit_deg
+        if limit <= 0.0 or limb != self.moving_limb or self.moving_kind != "foot":
+            return False
+        task = self.contact_body_tasks[limb]
+        R = task.T_world_target.rotation.T @ self.wb.data.oMf[task.frame_id].rotation
+        # the rotation angle from the trace (cheaper than log3 per tick)
+        cos = min(1.0, max(-1.0, 0.5 * (float(np.trace(R)) - 1.0)))
+        return math.degrees(math.acos(cos)) > limit
+
     def search_travel(self, limb: str) -> float:
         """[m] how far the limb itself has moved past the search's origin (its last planned target)
         along the search direction (0 before the search creeps)."""
@@ -524,6 +539,12 @@ class Controller:
         shift_world = self.wb.data.oMf[self.limb_frame_ids[limb]].rotation @ estimate.shift_in_frame
         self.contact_set.shift(limb, estimate.shift_in_frame, shift_world, self.params.contacts.friction_margin,
                                self.params.contacts.generators_per_point, normal=estimate.normal_world)
+        p = self.placement_offset
+        if p is not None and p[0] == limb and p[1] == hold.env_surface:
+            # the approach saw the rung along its direction only; the line under the sole says
+            # where it is across it (a pitched sole's approach is not the rung's own offset: a
+            # rung 3 cm low found 5 mm off along x without this, measured)
+            self.placement_offset = (limb, p[1], p[2] + shift_world, p[3])
 
     def begin_release(self, limb: str) -> None:
         self.line_locator.cancel(limb)

@@ -158,6 +158,7 @@ class Context(Protocol):
     def ft_force_change(self, limb: str) -> float: ...
     def contact_threshold(self, limb: str) -> float: ...
     def search_stalled(self, limb: str) -> bool: ...
+    def limb_tilted(self, limb: str) -> bool: ...
     def search_travel(self, limb: str) -> float: ...
     def set_guard(self, limb: str, surface: str, on: bool) -> None: ...
     def emit(self, kind: str, **values: Any) -> None: ...
@@ -339,10 +340,13 @@ class TransferState(State):
             ramp = min(1.0, (ctx.time - self.tared_at) / max(g.stiffen_time_s, 1e-9))
             task.stiffness = k0 + ramp * (g.search_stiffness - k0)
         armed = self.tared_at is not None and ctx.time - self.tared_at >= g.settle_time_s
-        if armed and ctx.ft_force_change(ctx.moving_limb) > ctx.contact_threshold(ctx.moving_limb):
-            ctx.path.freeze_limb()
-            ctx.emit("contact_detected", limb=ctx.moving_limb, early=not done, state=self.name, by="force")
-            return "contact"
+        if armed:
+            by_force = ctx.ft_force_change(ctx.moving_limb) > ctx.contact_threshold(ctx.moving_limb)
+            if by_force or ctx.limb_tilted(ctx.moving_limb):
+                ctx.path.freeze_limb()
+                ctx.emit("contact_detected", limb=ctx.moving_limb, early=not done, state=self.name,
+                         by="force" if by_force else "tilt")
+                return "contact"
         return "path_end" if done else None
 
     def teardown(self, ctx: Context) -> None:  # (search sets its own stiffness in start)
@@ -371,10 +375,10 @@ class SearchState(State):
         g = ctx.params.guarded
         limb = ctx.moving_limb
         by_force = ctx.ft_force_change(limb) > ctx.contact_threshold(limb)
-        if by_force or ctx.search_stalled(limb):
+        by = "force" if by_force else "stall" if ctx.search_stalled(limb) else "tilt" if ctx.limb_tilted(limb) else ""
+        if by:
             ctx.path.freeze_limb()
-            ctx.emit("contact_detected", limb=limb, early=False, state=self.name,
-                     extra_travel=self.travelled, by="force" if by_force else "stall")
+            ctx.emit("contact_detected", limb=limb, early=False, state=self.name, extra_travel=self.travelled, by=by)
             return "contact"
         if self.travelled >= g.search_distance and (ctx.search_travel(limb) >= g.search_distance
                                                     or self.travelled >= g.search_distance + g.search_lead_max):
