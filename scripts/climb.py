@@ -7,7 +7,7 @@
     scripts/climb.py --plan tests/data/vertical_plan.json [--max-transitions 7] --out out/vertical
 
 --plan FILE: execute a plan made before (scripts/plan.py --out FILE; planner_node.plan_io JSON)
-instead of planning one, in process; --scenario and --rungs default to the plan's, the robot starts in
+instead of planning one, in process; --scenario, --robot and --rungs default to the plan's, the robot starts in
 the fixture that holds the plan's first stance, and a replan goes to the planner as usual.
 
 --scenario (alias --ladder): a name in config/ladders/ or config/scenes/, or a scenario file
@@ -51,7 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--scenario", "--ladder", dest="scenario", default=None,
                     help="scenario: name in config/ladders/ or config/scenes/, or a YAML file (--ladder: alias; "
                          "default: default, or the --plan's)")
-    ap.add_argument("--robot", default="g1", help="robot config name (config/robots/<name>.yaml)")
+    ap.add_argument("--robot", default=None,
+                    help="robot config name (config/robots/<name>.yaml; default: g1, or the --plan's)")
     ap.add_argument("--rungs", type=int, default=None,
                     help="climbing cycles after the mount (feet end on rung N; default: 2, or the --plan's)")
     ap.add_argument("--mode", default="qp", help="controller mode: qp | compliance")
@@ -96,7 +97,7 @@ def _request(args):
 
 
 def stored_plan_defaults(args) -> None:
-    """--plan: the graph is this process, --scenario and --rungs the plan's unless given
+    """--plan: the graph is this process, --scenario, --robot and --rungs the plan's unless given
     (SpecError naming the option or the plan's field)."""
     from climb_core.errors import SpecError
     from planner_node.plan_io import load_plan
@@ -106,6 +107,7 @@ def stored_plan_defaults(args) -> None:
     args.graph = "inprocess"
     plan, metadata = load_plan(args.plan)
     args.scenario = args.scenario or plan.environment
+    args.robot = args.robot or plan.robot
     if args.rungs is None:
         steps = metadata.get("steps")
         args.rungs = int(steps) if isinstance(steps, int) and steps >= 1 else 2
@@ -125,6 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     args.graph = args.graph or "processes"
     args.scenario = args.scenario or "default"
+    args.robot = args.robot or "g1"
     args.rungs = 2 if args.rungs is None else args.rungs
     req = with_chosen_strategy(_request(args))
     summary = base_summary(req)

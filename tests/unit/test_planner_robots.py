@@ -7,6 +7,7 @@ the other, the lower foot unloaded (about to move), both hands on the rung above
 cannot hold it; G1 holds the same stance."""
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import pathlib
 
@@ -62,14 +63,19 @@ def test_design_foot_offset_reaches_the_ik_targets_not_the_frozen_check(env):
     base = fz.load_config()
     cfg = mp.design_hold_config(base, _design("talos"))
     assert cfg.holds.foot_on_rung_offset == pytest.approx(0.05)
+    assert cfg.holds.foot_on_rung_pitch_deg == pytest.approx(10.0)  # the design's pitched soles too
     assert mp.design_hold_config(base, _design("g1")) is base
-    h0 = holds.make_hold(talos, env, "left_foot", "rung_2", 0.085, params=base.holds)
+    pitched = dataclasses.replace(base.holds, foot_on_rung_pitch_deg=10.0)  # the same pitch, no offset
+    h0 = holds.make_hold(talos, env, "left_foot", "rung_2", 0.085, params=pitched)
     h1 = holds.make_hold(talos, env, "left_foot", "rung_2", 0.085, params=cfg.holds)
     np.testing.assert_allclose(h0.positions, h1.positions)
-    T0 = holds.hold_target(talos, env, h0, params=base.holds).T_world_surface
+    T0 = holds.hold_target(talos, env, h0, params=pitched).T_world_surface
     T1 = holds.hold_target(talos, env, h1, params=cfg.holds).T_world_surface
-    # the sole centre moves 5 cm toward the robot (ball of the foot on the rung)
-    assert T0[0, 3] - T1[0, 3] == pytest.approx(0.05 * np.cos(0.0), abs=1e-6)
+    # the sole centre moves 5 cm toward the robot along the sole (ball of the foot on the rung),
+    # the sole pitched 10 deg toes up
+    d = T0[:3, 3] - T1[:3, 3]
+    assert np.linalg.norm(d) == pytest.approx(0.05, abs=1e-6)
+    assert d[0] == pytest.approx(0.05 * np.cos(np.radians(10.0)), abs=1e-6)
 
 
 def _staggered(robot, env, foot_s, hand_s):
@@ -174,3 +180,22 @@ def test_g1_holds_the_same_stance(g1, env):
     assert res.success, res.violated
     chk = fz.check(g1, env, res.q, stance.without("right_foot"))
     assert chk.feasible and chk.details["load_ratio_variable"] < 0.95
+
+
+def test_talos_plans_the_default_ladder_two_steps_and_the_frozen_check_passes_the_plan(env):
+    """TALOS's library (config/primitives/talos/forward, its design's soles pitched 10 deg toes up
+    with the ball of the foot on the rung: the shin then clears the next rung) plans the default
+    ladder's mount and two cycles; the frozen feasibility check re-verifies every configuration
+    of the plan and its feet end on rung 2."""
+    from planner_node.climb_planner import plan_climb
+    from planner_node.verify import verify_plan
+
+    talos = load_robot("talos")
+    settings = load_settings()
+    res = plan_climb(talos, env, 2, settings=settings, seed=0, timeout_s=120.0)
+    assert res.success, (res.failure_constraint, res.failure_detail)
+    assert res.summary()["rungs_reached"] == 2 and res.plan.robot == "talos"
+    feet = [h for h in res.plan.transitions[-1].target_stance.holds if h.limb.endswith("_foot")]
+    assert sorted(h.env_surface for h in feet) == ["rung_2", "rung_2"]
+    rep = verify_plan(talos, env, res.plan, refine=1, settings=settings, goal_feet_rung=2)
+    assert rep.ok, rep.summary()

@@ -113,9 +113,15 @@ class AdaptContext:
         self.settings = settings
         self.frozen_cfg = feasibility_cfg or feasibility.load_config()
         p = settings.planning
+        placement = {}
         if p.foot_on_rung_pitch_deg:  # the holds this plan makes (a hold keeps its pitch: the checks read it there)
+            placement["foot_on_rung_pitch_deg"] = p.foot_on_rung_pitch_deg
+        offset = library.holds.get("foot_on_rung_offset") if library is not None else None
+        if offset is not None:  # where the library's design put the soles on the rungs (TALOS: the ball of the
+            placement["foot_on_rung_offset"] = float(offset)  # foot; the checks judge the rung line under the sole)
+        if placement:
             self.frozen_cfg = dataclasses.replace(self.frozen_cfg, holds=dataclasses.replace(
-                self.frozen_cfg.holds, foot_on_rung_pitch_deg=p.foot_on_rung_pitch_deg))
+                self.frozen_cfg.holds, **placement))
         # the planner's own checks: the frozen check with planning margins on top
         self.check_cfg = feasibility.with_check(
             self.frozen_cfg,
