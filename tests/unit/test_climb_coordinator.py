@@ -97,6 +97,7 @@ STORED_VERTICAL = ROOT / "tests" / "data" / "vertical_plan.json"
     (["--plan", "{no_joints}"], "plan.joint_names: required"),
     (["--plan", str(STORED_VERTICAL), "--graph", "composed"], "--plan: a stored plan is executed in process"),
     (["--plan", str(STORED_VERTICAL), "--scenario", "default"], "plan.environment: "),
+    (["--plan", str(STORED_VERTICAL), "--robot", "talos"], "plan.robot: "),
 ])
 def test_climb_script_refuses_a_stored_plan_it_cannot_execute_with_exit_2(tmp_path, args, field):
     import json
@@ -139,3 +140,23 @@ def test_a_stored_plan_starts_in_the_fixture_that_holds_its_first_stance():
     with pytest.raises(SpecError) as err:  # no fixture hangs from one hand
         stored_plan_fixture(replace(on_ladder, initial_stance=one_hand), robot, load_scenario("default"))
     assert err.value.field == "plan.initial_stance"
+
+
+def test_a_stored_plan_gives_the_climb_its_scenario_robot_and_rungs_unless_given(tmp_path):
+    """scripts/climb.py --plan: --scenario, --robot and --rungs default to the plan's."""
+    import importlib.util
+    import json
+
+    spec = importlib.util.spec_from_file_location("climb_script", ROOT / "scripts" / "climb.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    doc = json.loads(STORED_VERTICAL.read_text())
+    doc["robot"] = "talos"  # (only read here, never executed)
+    path = tmp_path / "talos_plan.json"
+    path.write_text(json.dumps(doc))
+    args = script.build_parser().parse_args(["--plan", str(path)])
+    script.stored_plan_defaults(args)
+    assert (args.scenario, args.robot, args.graph) == ("vertical", "talos", "inprocess")
+    args = script.build_parser().parse_args(["--plan", str(path), "--robot", "g1", "--rungs", "1"])
+    script.stored_plan_defaults(args)
+    assert (args.robot, args.rungs) == ("g1", 1)
