@@ -20,7 +20,8 @@ STORED = ROOT / "tests" / "data" / "narrow_passage_step_plan.json"
 
 def test_retimed_keeps_the_paths_and_times_them_under_the_given_limits(g1):
     plan, _ = plan_io.load_plan(STORED)
-    timing = load_settings().timing
+    # the timing the stored plan was made with (before the soles' CoM acceleration bound)
+    timing = dataclasses.replace(load_settings().timing, soles_max_com_acceleration=0.0)
     half = dataclasses.replace(timing, max_joint_speed=timing.max_joint_speed / 2,
                                max_base_speed=timing.max_base_speed / 2,
                                max_base_angular_speed=timing.max_base_angular_speed / 2)
@@ -110,7 +111,8 @@ def test_near_the_heels_the_path_slows_down_and_elsewhere_it_does_not(g1):
     from planner_node.interpolation import support_edge_factors
 
     stance, q0 = _standing_on_soles(g1)
-    timing = dataclasses.replace(load_settings().timing, edge_slowdown_margin=0.045)  # the vertical ladder's
+    timing = dataclasses.replace(load_settings().timing, edge_slowdown_margin=0.045,  # the vertical ladder's
+                                 soles_max_com_acceleration=0.0)  # (its own test, below)
     assert timing.edge_slowdown_max > 1.0
     soles = np.vstack([h.positions for h in stance.holds])
     data = g1.model.createData()
@@ -142,3 +144,32 @@ def test_near_the_heels_the_path_slows_down_and_elsewhere_it_does_not(g1):
     assert support_edge_factors(g1.model, sideways, stance, timing.edge_slowdown_margin, 2.0) is None
     grasped = Stance(stance.holds[:1] + (dataclasses.replace(stance.holds[1], bilateral=True),), "grasp")
     assert support_edge_factors(g1.model, path, grasped, timing.edge_slowdown_margin, 2.0) is None
+
+
+def test_on_the_soles_alone_the_com_acceleration_bound_of_the_soles_applies(g1):
+    """``timing.soles_max_com_acceleration`` (0.1 m/s^2 by default: G1 tipped over its heels in the
+    first hand's mount of 80-90 deg ladders at the planner's speeds, docs/planner.md) bounds the CoM's
+    acceleration of the transitions the flat soles carry alone; with a grasp in the stance only
+    ``max_com_acceleration`` (0 by default: none) applies."""
+    from climb_core.contact import Stance
+    from planner_node.interpolation import com_acceleration_bound, on_soles_alone
+
+    stance, q0 = _standing_on_soles(g1)
+    timing = dataclasses.replace(load_settings().timing, edge_slowdown_margin=0.0)
+    assert timing.soles_max_com_acceleration > 0.0 and timing.max_com_acceleration == 0.0
+    grasped = Stance(stance.holds[:1] + (dataclasses.replace(stance.holds[1], bilateral=True),), "grasp")
+    assert on_soles_alone(stance) and not on_soles_alone(grasped)
+    assert com_acceleration_bound(stance, timing) == timing.soles_max_com_acceleration
+    assert com_acceleration_bound(grasped, timing) == 0.0
+    both = dataclasses.replace(timing, max_com_acceleration=timing.soles_max_com_acceleration / 2)
+    assert com_acceleration_bound(stance, both) == both.max_com_acceleration  # the smaller one
+    path = []
+    for x in (0.0, 0.01, 0.03, 0.05, 0.04, 0.02, 0.0):  # the base forward, then back
+        q = q0.copy()
+        q[0] += x
+        path.append(q)
+    on_soles = time_transition(g1.model, path, stance, timing)
+    with_grasp = time_transition(g1.model, path, grasped, timing)
+    assert _com_accelerations(g1.model, path, on_soles).max() <= timing.soles_max_com_acceleration * 1.01 + 1e-9
+    assert _com_accelerations(g1.model, path, with_grasp).max() > 2 * timing.soles_max_com_acceleration
+    assert on_soles[-1] > with_grasp[-1]

@@ -175,17 +175,13 @@ def support_edge_factors(model: pin.Model, path: Sequence[np.ndarray], stance, m
     CoM's speed: near the heels that is enough for G1 to tip over them (the vertical ladder's mount,
     the CoM planned 2.6 cm from the heels, fell at full speed and was executed slowed there).
     None: nothing to slow (a grasp, a contact without an area, or no way-point that near)."""
-    if margin <= 0.0 or len(path) < 2 or not stance.holds or any(h.bilateral for h in stance.holds):
+    if margin <= 0.0 or len(path) < 2 or not on_soles_alone(stance):
         return None
     from scipy.spatial import ConvexHull, QhullError  # (here: ~0.5 s to import, only when on)
-
-    from climb_core.contact import limb_type
 
     points, axis = [], np.zeros(2)
     for h in stance.holds:
         xy = h.positions[:, :2]
-        if limb_type(h.limb) != "foot" or len(xy) < 3:
-            return None
         _, s, vt = np.linalg.svd(xy - xy.mean(axis=0))
         if s[-1] < 1e-3:  # a line contact (a sole on a round rung): no heel edge to keep off
             return None
@@ -208,14 +204,33 @@ def support_edge_factors(model: pin.Model, path: Sequence[np.ndarray], stance, m
     return np.maximum(factor[:-1], factor[1:])
 
 
+def on_soles_alone(stance) -> bool:
+    """Whether the flat soles carry ``stance`` alone: no grasp, and every hold a foot's with at
+    least three points (a sole's area, not a point foot)."""
+    from climb_core.contact import limb_type
+
+    return bool(stance.holds) and all(not h.bilateral and limb_type(h.limb) == "foot" and len(h.positions) >= 3
+                                      for h in stance.holds)
+
+
+def com_acceleration_bound(stance, timing) -> float:
+    """The CoM acceleration bound [m/s^2] of a transition held in ``stance`` (0: none):
+    ``timing.max_com_acceleration``, and on the soles alone (:func:`on_soles_alone`) the smaller
+    ``timing.soles_max_com_acceleration`` too (each 0: off)."""
+    bounds = [b for b in (timing.max_com_acceleration,
+                          timing.soles_max_com_acceleration if on_soles_alone(stance) else 0.0) if b > 0.0]
+    return min(bounds, default=0.0)
+
+
 def time_transition(model: pin.Model, path: Sequence[np.ndarray], stance, timing) -> np.ndarray:
     """Way-point times [s] of one transition's path held in ``stance`` under ``timing``
     (:class:`planner_node.settings.TimingParams`): the speed limits, ramps and least duration of
-    :func:`time_parameterize`, slowed near the soles' heel and toe edges (:func:`support_edge_factors`)."""
+    :func:`time_parameterize`, the CoM's acceleration bounded (:func:`com_acceleration_bound`), slowed
+    near the soles' heel and toe edges (:func:`support_edge_factors`)."""
     scale = support_edge_factors(model, path, stance, timing.edge_slowdown_margin, timing.edge_slowdown_max)
     return time_parameterize(model, path, timing.max_joint_speed, timing.max_base_speed,
                              timing.max_base_angular_speed, timing.min_transition_duration, timing.ramp_fraction,
-                             timing.max_com_acceleration, scale)
+                             com_acceleration_bound(stance, timing), scale)
 
 
 def bound_com_acceleration(model: pin.Model, path: Sequence[np.ndarray], durations: np.ndarray,

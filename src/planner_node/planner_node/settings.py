@@ -141,6 +141,9 @@ class TimingParams:
     max_com_acceleration: float = param(0.0, unit="m/s^2", min=0.0, description=(
         "largest horizontal acceleration of the centre of mass at a way-point, each transition from rest to rest "
         "(the ZMP within z_com / g times it of the CoM; 0: no bound)"))
+    soles_max_com_acceleration: float = param(0.1, unit="m/s^2", min=0.0, description=(
+        "the same bound on the transitions the flat soles carry alone (no grasp; the smaller of the two applies; "
+        "0: off; G1 tipped over its heels in the first hand's mount of 80-90 deg ladders at the planner's speeds)"))
     edge_slowdown_margin: float = param(0.0, unit="m", min=0.0, max=0.1, description=(
         "a transition the flat soles carry alone (no grasp) slows down by margin / distance where its CoM comes "
         "closer than this to the heel or toe edge of the soles' hull (0: off; the vertical and caged ladders set "
