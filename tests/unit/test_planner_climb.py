@@ -131,3 +131,27 @@ def test_the_sequence_from_a_stance_in_the_middle_of_a_cycle_finishes_that_cycle
     assert checked == 3  # after each foot and the first hand (after the second: a boundary)
     boundary = plan.transitions[start - 1].target_stance
     assert [p.name for p in subtask_sequence(library, boundary, 1, env)] == cycle
+
+
+def test_a_replan_after_the_first_hand_mounted_plans_the_rest_of_the_mount(g1, env, planned):
+    """The mount's first hand found its rung off the plan (on a steep ladder: 84/0.20 of the coarse
+    grid): the replan starts on the ground with one hand on a rung, mounts the other hand and climbs
+    on (a whole-mount sequence is refused from there)."""
+    from planner_node.climb_planner import subtask_sequence
+    from planner_node.primitives import load_library
+
+    plan, _ = planned
+    settings = load_settings().planning
+    library = load_library("g1", settings.strategy, settings.primitives_dir, nq=g1.model.nq)
+    first = next(t for t in plan.transitions if t.primitive == "mount")
+    stance = first.target_stance
+    assert [limb_rung(stance, f) for f in FEET] == [0, 0] and limb_rung(stance, first.moving_limb) > 0
+    names = [p.name for p in subtask_sequence(library, stance, 1, env)]
+    assert names == list(library.sequences["mount"][1:]) + list(library.sequences["first_cycle"]
+                                                                  if "first_cycle" in library.sequences
+                                                                  else library.sequences["cycle"])
+    res = plan_climb(g1, env, 1, start=(first.path[-1], stance), seed=0)
+    assert res.success, res.failure_detail
+    assert res.subtasks[0] == library.sequences["mount"][1]
+    assert np.allclose(res.plan.transitions[0].path[0], first.path[-1])
+    assert all(limb_rung(res.final_state.stance, f) == 1 for f in FEET)

@@ -89,10 +89,12 @@ def subtask_sequence(library: PrimitiveLibrary, stance: Stance, steps: int, env:
     on_ground = all(r == 0 for r in feet)
     hands_on = all(r is not None and r > 0 for r in hands)
     if on_ground and not hands_on:
-        if any(r is not None for r in hands):
-            raise SpecError("start.stance", "start with both hands free or both on rungs")
-        seq += library.sequence("approach") if "approach" in library.sequences else []
-        seq += library.sequence("mount")
+        held = {h for h, r in zip(HANDS, hands) if r is not None}
+        if not held:
+            seq += library.sequence("approach") if "approach" in library.sequences else []
+            seq += library.sequence("mount")
+        else:  # a replan after the mount's first hand found its rung off the plan: the rest of the mount
+            seq += _rest_after(library.sequence("mount"), held, "mount", feet, hands)
     elif not hands_on:
         raise SpecError("start.stance", "on the ladder both hands must hold a rung")
     cycles = steps
@@ -131,14 +133,20 @@ def _rest_of_cycle(library: PrimitiveLibrary, stance: Stance, feet: list, hands:
         moved.add(HANDS[int(hands[1] > hands[0])])
     if not moved:
         return []
+    return _rest_after(cycle, moved, "cycle", feet, hands)
+
+
+def _rest_after(sequence: list[Primitive], moved: set[str], name: str, feet: list, hands: list) -> list[Primitive]:
+    """The primitives of ``sequence`` after its prefix that moved exactly the limbs ``moved``
+    (the prefix's CoM shifts included); SpecError when no prefix did."""
     placed: set[str] = set()
-    for j, prim in enumerate(cycle):
+    for j, prim in enumerate(sequence):
         if placed == moved:
-            return list(cycle[j:])
+            return list(sequence[j:])
         if prim.is_limb:
             placed.add(prim.limb)
-    raise SpecError("start.stance", f"feet on rungs {feet} and hands on rungs {hands}: no point of the cycle "
-                                    f"{[p.name for p in cycle]} has moved exactly {sorted(moved)}")
+    raise SpecError("start.stance", f"feet on rungs {feet} and hands on rungs {hands}: no point of the {name} "
+                                    f"{[p.name for p in sequence]} has moved exactly {sorted(moved)}")
 
 
 def _hands_rung(library: PrimitiveLibrary, stance: Stance, env: Any) -> int:
