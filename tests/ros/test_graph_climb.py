@@ -46,6 +46,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.timeout(3000)]  # a class's graph cli
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 CLIMB_TIMEOUT_S = 1500.0  # [s] wall: a 3-rung climb is ~130 s of sim time (slow on a loaded machine)
 FEET = ("left_foot", "right_foot")
+TOUCH_N = 2.0  # [N] a limb carrying at least this on a surface touches it (the cancel test)
 
 
 # ------------------------------------------------------------------------------ the test's node
@@ -510,14 +511,20 @@ class TestCancelMidClimb:
         span = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in after]
         assert span[-1] - span[0] >= 10.0
 
+        # a limb touches a surface when PyBullet reports contact points carrying load (or its grasp
+        # is latched): a sole unloaded by the weight shift the cancel interrupted (measured 2026-12-01:
+        # the left sole under 20 N when the cancel came, over it once the hold settled) still touches
         def touching(m):
             return {(limb, m.surface[i]) for i, limb in enumerate(m.limbs)
-                    if m.surface[i] and (m.normal_force[i] >= 20.0 or m.grasped[i])}
+                    if m.surface[i] and (m.normal_force[i] >= TOUCH_N or m.grasped[i])}
+
+        def loads(m):
+            return {limb: round(m.normal_force[i], 1) for i, limb in enumerate(m.limbs)}
         first = touching(after[0])
         assert first, "the robot holds on something"
         for m in after:
             assert not m.fell, m.fall_reason
-            assert touching(m) == first, (touching(m), first)
+            assert touching(m) == first, (touching(m), first, loads(after[0]), loads(m))
 
     def test_the_same_graph_takes_the_next_climb(self, run):
         """After a climb, the next request resets the simulator (sim time restarts near 0) and the
