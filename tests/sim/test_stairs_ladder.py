@@ -8,18 +8,29 @@ Stairs are walked, not climbed: the guide path's milestones stand upright on the
 (``contact_search.com_over_feet_*``), so that a hand lets go of its rail with the feet carrying
 the robot. Before, the searched stances hung 18-25 cm behind the soles on the rails and the robot
 fell backwards at the first re-grasp. The test checks what the simulator measured: both feet on
-tread 3, both hands on the rails, every hand re-grasped further up the rail with the measured CoM
-over the feet when its gripper opened, the loads in their cones, nothing fallen."""
+tread 3, both hands on the rails, every hand re-grasped further up the rail with the feet carrying
+the robot when its gripper opened (their measured normal forces, and the measured CoM over the
+soles' support polygon), the loads in their cones, nothing fallen.
+
+The feet of a re-grasp may stand on two treads (24 cm apart along the stairs): the CoM is judged
+against the polygon of the held soles' contact points, not their centroid (measured 2026-12-01,
+another plan of the same stairs: CoM 13 cm behind the centroid of the soles on treads 1 and 2).
+The plan depends on the machine's floating point (2026-12-01 and 2026-12-02: the re-grasps at
+transitions 7, 13, 19, 21, 27 and at 9, 17, 21, 25, 31, the same code)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import ConvexHull
 
 from climb_checks import check_run
 
 pytestmark = [pytest.mark.sim, pytest.mark.heavy]
 
-COM_OVER_FEET_M = 0.10  # [m] measured CoM to the held feet's centroid (along the stairs) when a grip opens
+# when a grip opens: the other hand still holds its rail, so the CoM may stand a little outside the
+# soles' polygon; before the walked search it hung 18-25 cm behind the soles (the robot fell)
+COM_OUTSIDE_SOLES_M = 0.04  # [m] measured CoM (x, y) at most this far outside the held soles' polygon
+FEET_WEIGHT_SHARE = 0.85  # [-] the held soles' measured normal forces carry at least this share of m g
 
 
 def test_the_stairs_ladder_is_walked_up_3_treads_holding_the_rails(tmp_path):
@@ -47,9 +58,10 @@ def test_the_stairs_ladder_is_walked_up_3_treads_holding_the_rails(tmp_path):
         for hand in ("left_hand", "right_hand"):
             closes = [e for e in gripper if e.values["hand"] == hand and e.values["command"] == "close"]
             assert len(closes) >= 2, (hand, closes)  # the first grasp and at least one re-grasp
-        # when a grip opened, the measured CoM stood over the feet (the stairs' x: along the stairs)
+        # when a grip opened, the feet carried the robot: their loads, and the CoM over the soles
         times = np.asarray(result.log.times)
         com = np.asarray(result.log.com)
+        weight = result.controller.robot.mass * 9.81
         # a re-grasp: a hand placed while it held the rail before (the FSM unloads and opens it first)
         regrasps = [k for k, t in enumerate(plan.transitions) if k and t.moving_limb in ("left_hand", "right_hand")
                     and plan.transitions[k - 1].target_stance.hold(t.moving_limb) is not None]
@@ -61,9 +73,13 @@ def test_the_stairs_ladder_is_walked_up_3_treads_holding_the_rails(tmp_path):
             opened = [e.time for e in gripper if e.values["hand"] == t.moving_limb and e.values["command"] == "open"
                       and start[0] <= e.time <= start[0] + 3.0]
             assert opened, (k, t.moving_limb)
-            feet_x = np.mean([h.centre[0] for h in t.stance.holds if limb_type(h.limb) == "foot"])
-            com_x = com[int(np.argmin(np.abs(times - opened[0]))), 0]
-            assert abs(com_x - feet_x) <= COM_OVER_FEET_M, (k, t.moving_limb, com_x, feet_x)
+            i = int(np.argmin(np.abs(times - opened[0])))
+            feet = [h for h in t.stance.holds if limb_type(h.limb) == "foot"]
+            hull = ConvexHull(np.vstack([h.positions[:, :2] for h in feet]))
+            outside = max(float(e[:2] @ com[i, :2] + e[2]) for e in hull.equations)  # < 0: inside
+            assert outside <= COM_OUTSIDE_SOLES_M, (k, t.moving_limb, com[i], [(h.limb, h.env_surface) for h in feet])
+            carried = sum(result.log.loads[h.limb][i][0] for h in feet if result.log.loads[h.limb][i] is not None)
+            assert carried >= FEET_WEIGHT_SHARE * weight, (k, t.moving_limb, carried, weight)
     finally:
         result.close()
 
