@@ -41,7 +41,7 @@ def standing(robot, env, params, **overrides):
         hold = hold_from_configuration(robot, env, q, limb, "ground")
         fid = robot.frame_id(robot.config.limbs[limb].surface.frame)
         contacts.append(contact_from_hold(hold, fid, wb.data.oMf[fid], robot.config.limbs[limb].surface.T_frame_surface,
-                                          force_limit=p.contacts.unilateral_force_limit,
+                                          force_limit=p.contacts.unilateral_force_limit_weights * robot.mass * 9.81,
                                           min_normal_force=p.contacts.min_normal_force,
                                           friction_margin=p.contacts.friction_margin))
     com = ComTask(p.tasks.com, wb.data.com[0].copy())
