@@ -62,6 +62,21 @@ def test_sensor_frames_are_the_child_links_of_the_sensor_joints():
         assert robot.model.names[frame.parentJoint] == robot.config.ft_sensors[sensor]
 
 
+def test_a_sensor_on_a_fixed_joint_reads_in_its_child_link_and_a_missing_one_is_an_error():
+    """TALOS's wrist sensors sit on fixed joints (wrist_*_ft_joint), which Pinocchio keeps as
+    frames, not joints: they were left out, and TALOS's hands sensed nothing (a gripper pressed on
+    its rung with 120 N read 0 N, measured 2026-12-02)."""
+    from climb_core.robot import load_robot
+
+    robot = load_robot("talos")
+    frames = ft_sensor_frames(robot.model, robot.config.ft_sensors)
+    assert set(frames) == set(robot.config.ft_sensors)
+    assert robot.model.frames[frames["left_wrist"]].name == "wrist_left_ft_link"
+    assert robot.model.frames[frames["right_wrist"]].name == "wrist_right_ft_link"
+    with pytest.raises(ValueError, match="ft_sensors.left_wrist"):
+        ft_sensor_frames(robot.model, {"left_wrist": "no_such_joint"})
+
+
 def test_a_push_too_small_for_the_noisy_fast_threshold_confirms_a_stall_on_the_slow_filter():
     """An ankle F/T with 2 % noise (20 N sigma): the fast threshold (5 sigma of the 10 ms filter,
     ~58 N) is more than a creeping foot can push; a 25 N push is confirmed on the 200 ms filter

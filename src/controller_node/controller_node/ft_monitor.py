@@ -24,16 +24,27 @@ from typing import Mapping, Sequence
 import numpy as np
 import pinocchio as pin
 
+from climb_core.errors import SpecError
+
 
 def ft_sensor_frames(model: pin.Model, sensor_joints: Mapping[str, str]) -> dict[str, int]:
-    """sensor -> frame id of the sensor joint's child link (the frame its wrench is given in)."""
+    """sensor -> frame id of the sensor joint's child link (the frame its wrench is given in).
+    A sensor on a fixed joint (TALOS's ``wrist_*_ft_joint``) is no Pinocchio joint but a
+    FIXED_JOINT frame: its child link is the BODY frame that follows it. SpecError names a
+    sensor whose joint the model has in neither form (its limb would sense nothing)."""
     out = {}
     for sensor, joint in sensor_joints.items():
-        jid = model.getJointId(joint)
-        for fid, frame in enumerate(model.frames):
-            if frame.parentJoint == jid and frame.type == pin.FrameType.BODY:
-                out[sensor] = fid
-                break
+        if model.existJointName(joint):
+            jid = model.getJointId(joint)
+            child = [fid for fid, f in enumerate(model.frames) if f.parentJoint == jid and f.type == pin.FrameType.BODY]
+        elif model.existFrame(joint, pin.FrameType.FIXED_JOINT):
+            fixed = model.getFrameId(joint, pin.FrameType.FIXED_JOINT)
+            child = [fid for fid, f in enumerate(model.frames) if f.previousFrame == fixed and f.type == pin.FrameType.BODY]
+        else:
+            child = []
+        if not child:
+            raise SpecError(f"ft_sensors.{sensor}", f"joint {joint!r} has no child link in the robot model")
+        out[sensor] = child[0]
     return out
 
 
