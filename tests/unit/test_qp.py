@@ -40,8 +40,9 @@ def standing(robot, env, params, **overrides):
     for limb in ("left_foot", "right_foot"):
         hold = hold_from_configuration(robot, env, q, limb, "ground")
         fid = robot.frame_id(robot.config.limbs[limb].surface.frame)
+        ft_force_range = robot.config.ft_ranges[robot.config.limbs[limb].ft_sensor][0]
         contacts.append(contact_from_hold(hold, fid, wb.data.oMf[fid], robot.config.limbs[limb].surface.T_frame_surface,
-                                          force_limit=p.contacts.unilateral_force_limit_weights * robot.mass * 9.81,
+                                          force_limit=p.contacts.unilateral_force_limit_ft_range * ft_force_range,
                                           min_normal_force=p.contacts.min_normal_force,
                                           friction_margin=p.contacts.friction_margin))
     com = ComTask(p.tasks.com, wb.data.com[0].copy())

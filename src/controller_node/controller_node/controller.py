@@ -131,7 +131,6 @@ class Controller:
         self.joint_names = tuple(robot.joint_names)
         self.na = self.model.nv - 6
         self.effort_limits = robot.effort_limits()
-        self.weight = float(robot.mass * np.linalg.norm(robot.model.gravity.linear))  # [N] m g
         self._neg_effort_limits = -self.effort_limits
         collision = self._make_collision(robot, environment) if environment is not None else None
         self.wb = WholeBodyQP(self.model, self.effort_limits, params, collision)
@@ -513,7 +512,7 @@ class Controller:
             grip = hold.grip_force_limit * c.grip_force_fraction
         hold_for_qp = hold if not hold.bilateral else Hold(hold.limb, hold.robot_surface, hold.env_surface,
                                                            hold.points, hold.friction, True, grip)
-        push_limit = c.unilateral_force_limit_weights * self.weight
+        push_limit = c.unilateral_force_limit_ft_range * self.robot.config.ft_ranges[self.limbs[limb].ft_sensor][0]
         contact = contact_from_hold(hold_for_qp, fid, self.wb.data.oMf[fid], self.limb_surface[limb],
                                     force_limit=grip if hold.bilateral else push_limit,
                                     torque_limit=torque_limit, min_normal_force=c.min_normal_force,

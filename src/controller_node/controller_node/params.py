@@ -62,10 +62,10 @@ class ContactParams:
         "forces up to mu f_n: constraints.friction_generators)"))
     min_normal_force: float = param(1.0, unit="N", min=0.0,
                                     description="minimum normal force per point of an established unilateral contact")
-    unilateral_force_limit_weights: float = param(2.4, unit="m g", min=0.1, description=(
-        "cap on the total normal force of one unilateral contact, in the robot's weights: G1 (34.4 kg) 810 N, "
-        "TALOS (93.3 kg) 2.2 kN. A fixed 800 N left TALOS's 916 N without support on one foot (the stance "
-        "leg folded at its first foot lift: measured, docs/benchmarks.md)"))
+    unilateral_force_limit_ft_range: float = param(0.8, unit="-", min=0.05, max=1.0, description=(
+        "cap on the total normal force of one unilateral contact, as a share of the force range of its limb's "
+        "F/T sensor (robot config ft_ranges), which must read it: G1's ankles 1 kN -> 800 N, TALOS's 3 kN -> "
+        "2.4 kN. A fixed 800 N left TALOS's 916 N without support on one foot (measured, docs/benchmarks.md)"))
     grip_force_fraction: float = param(0.8, unit="-", min=0.0, max=1.0,
                                        description="share of the robot's grip strength the QP may use")
     grasp_torque_limit: float = param(6.0, unit="N m", min=0.0, description="per-axis moment cap of a closed grasp")
