@@ -13,8 +13,9 @@ the robot when its gripper opened (their measured normal forces, and the measure
 soles' support polygon), the loads in their cones, nothing fallen.
 
 The feet of a re-grasp may stand on two treads (24 cm apart along the stairs): the CoM is judged
-against the polygon of the held soles' contact points, not their centroid (measured 2026-12-01,
-another plan of the same stairs: CoM 13 cm behind the centroid of the soles on treads 1 and 2).
+against the polygon of the held soles' contact points, not their centroid (measured 2026-12-02:
+with the soles on treads 1 and 2 the CoM stood 9.8 cm behind their centroid, 2.6 cm inside their
+polygon; on 2026-12-01 another plan's re-grasp had it 13 cm behind the centroid).
 The plan depends on the machine's floating point (2026-12-01 and 2026-12-02: the re-grasps at
 transitions 7, 13, 19, 21, 27 and at 9, 17, 21, 25, 31, the same code)."""
 from __future__ import annotations
