@@ -13,13 +13,14 @@
 #   The ROS tests do not run beside the simulator tests: measured, with an in-process climb on the
 #   other core a node's SIGINT exit and a recorder's first messages missed their bounds.
 # One BLAS / OpenMP thread per process: two workers already use both cores.
+# The tests marked long (minutes-long executions past this budget) are make test-long's, not run here.
 # Extra arguments go to both pytest runs. Exit code: non-zero when either part failed (both run).
 set -u
 cd "$(dirname "$0")/.."
 PY=.venv/bin/python
 export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
 t0=$(date +%s)
-"$PY" -m pytest -q -n 2 --dist load --maxschedchunk 2 --durations=15 tests/unit tests/sim "$@"
+"$PY" -m pytest -q -n 2 --dist load --maxschedchunk 2 --durations=15 -m "not long" tests/unit tests/sim "$@"
 lib=$?
 t1=$(date +%s)
 "$PY" -m pytest -q -n 2 --dist loadscope --no-loadscope-reorder --durations=15 tests/ros "$@"

@@ -102,8 +102,8 @@ def _check_the_scene(result, settings) -> None:
 NARROW_PASSAGE_PLAN = pathlib.Path(__file__).resolve().parents[1] / "data" / "narrow_passage_plan.json"
 
 
-@pytest.mark.skipif(os.environ.get("CLIMB_SLOW_TESTS") != "1",
-                    reason="executes 603 s of motion (61 transitions, ~9 min wall): set CLIMB_SLOW_TESTS=1")
+@pytest.mark.heavy
+@pytest.mark.long  # make test-long: 603 s of motion, 61 transitions, ~10 min wall
 @pytest.mark.timeout(1800)  # ~1x real time alone, slower beside other work
 def test_the_whole_narrow_passage_is_executed_to_the_goal(tmp_path):
     """The whole scene of the paper's Fig. 3 (config/scenes/narrow_passage.yaml): the corridor, the
