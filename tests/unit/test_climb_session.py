@@ -196,7 +196,8 @@ def test_check_request_refuses_with_the_field(changes, field):
     ("default", "primitives", "regular ladder at 75 deg (> guide_path.walk_max_incline_deg 50)"),
     ("stairs", "search", "stairs ladder at 35 deg (<= guide_path.walk_max_incline_deg 50): walked up"),
     ("step_up", "search", "a scene without a ladder"),
-    ("vertical", "primitives", "vertical ladder at 90 deg")])
+    ("vertical", "primitives", "vertical ladder at 90 deg"),
+    ("vertical", "primitives", "steep (>= 84 deg, climb.steep_ladder)")])
 def test_a_request_naming_no_strategy_gets_the_scenarios_with_the_reason(ladder, strategy, reason):
     from climb_coordinator.session import base_summary, with_chosen_strategy
 

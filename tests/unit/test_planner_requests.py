@@ -128,6 +128,55 @@ def test_every_caller_orders_the_settings_of_a_scenario_the_same_way():
     assert err.value.field.endswith("timing.nope")
 
 
+def test_a_steep_ladder_plans_within_the_controllers_grasp_moments():
+    """config/climb.yaml's ``steep_ladder``: a ladder at least its bound steep (the vertical ladder,
+    90 deg) plans with its overrides (the grasp moment cap of the controller's QP, planner and IK),
+    a shallower one (the default, 75 deg) and a walked one (stairs) do not; the scenario file's own
+    overrides still come last; a malformed block names its field."""
+    from climb_coordinator.settings import load_climb_settings
+    from planner_node.settings import apply_overrides, settings_for_scenario, steep_ladder
+
+    cs = load_climb_settings()
+    assert cs.steep_ladder["min_incline_deg"] == 84.0
+    base = load_settings()
+    vertical = load_scenario("vertical")
+    s = settings_for_scenario(base, vertical, steep=cs.steep_ladder)
+    for key, value in cs.steep_ladder["planner_overrides"].items():
+        group, name = key.split(".")
+        assert getattr(getattr(s, group), name) == value > 0
+    assert s.planning.foot_on_rung_pitch_deg == 10.0  # vertical.yaml's own overrides kept
+    assert settings_for_scenario(base, load_scenario("default"), steep=cs.steep_ladder) is base
+    stairs = settings_for_scenario(base, load_scenario("stairs"), steep=cs.steep_ladder)
+    assert stairs.planning.grasp_moment_limit == base.planning.grasp_moment_limit == 0.0
+    # the bound is inclusive; 0 turns the rule off
+    assert steep_ladder(vertical, {"min_incline_deg": 90.0}) and not steep_ladder(vertical, {"min_incline_deg": 0})
+    # the scenario's own overrides win over the steep ones
+    own = apply_overrides(base, {})
+    doc = {"min_incline_deg": 84.0, "planner_overrides": {"timing.edge_slowdown_margin": 0.01}}
+    assert settings_for_scenario(own, vertical, steep=doc).timing.edge_slowdown_margin == 0.045
+    with pytest.raises(SpecError) as err:
+        settings_for_scenario(base, vertical, steep={"min_incline_deg": 84.0, "planner_overrides": {"pcik.nope": 1}})
+    assert err.value.field.endswith("pcik.nope")
+
+
+def test_a_malformed_steep_ladder_block_names_its_field(tmp_path):
+    import yaml
+
+    from climb_coordinator.settings import load_climb_settings
+    from climb_core.ros_env import project_root
+
+    doc = yaml.safe_load((project_root() / "config" / "climb.yaml").read_text())
+    for bad, field in (({"planner_overrides": {}}, "climb.steep_ladder.min_incline_deg"),
+                       ({"min_incline_deg": "steep", "planner_overrides": {}}, "climb.steep_ladder.min_incline_deg"),
+                       ({"min_incline_deg": 84.0, "planner_overrides": [1]}, "climb.steep_ladder")):
+        doc["climb"]["steep_ladder"] = bad
+        path = tmp_path / "climb.yaml"
+        path.write_text(yaml.safe_dump(doc))
+        with pytest.raises(SpecError) as err:
+            load_climb_settings(path)
+        assert err.value.field == field, (bad, err.value)
+
+
 def test_every_planning_caller_ranks_the_library_variants_like_the_sweep(tmp_path):
     """A grid ladder at a variant's reference (84 deg / 32 cm): the in-process climb
     (climb_coordinator.climb.plan), the graph's adaptation (pipeline.adapt) and scripts/plan.py

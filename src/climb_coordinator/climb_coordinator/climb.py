@@ -480,7 +480,7 @@ def _planning(req: ClimbRequest, cs: ClimbSettings):
     env = build_environment(scenario)
     robot = load_robot(req.robot)
     psettings = settings_for_scenario(apply_planner_overrides(load_settings(), cs.planner_overrides), scenario,
-                                      scene_overrides=cs.scene_planner_overrides)
+                                      scene_overrides=cs.scene_planner_overrides, steep=cs.steep_ladder)
     if req.strategy == "search":
         posture = req.start_posture or "standing"
         return scenario, SearchPlanSource(req, robot, env, psettings, cs, posture), posture

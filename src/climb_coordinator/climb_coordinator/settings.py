@@ -21,6 +21,9 @@ class ClimbSettings:
     planner_overrides: dict = field(default_factory=dict)  # dotted planner settings (section.field)
     #: applied after planner_overrides when the scenario is a scene without a ladder
     scene_planner_overrides: dict = field(default_factory=dict)
+    #: a ladder at least ``min_incline_deg`` steep plans with its ``planner_overrides`` after the
+    #: climb's (planner_node.settings.settings_for_scenario); {}: none
+    steep_ladder: dict = field(default_factory=dict)
     bag_rate_hz: float = 50.0  # [Hz]
     log_rate_hz: float = 50.0  # [Hz]
     foot_force_min: float = 20.0  # [N]
@@ -75,13 +78,18 @@ def load_climb_settings(path: str | pathlib.Path | None = None) -> ClimbSettings
         raise SpecError("climb.controller_overrides", "must be mappings of dotted parameter names")
     if not isinstance(scene_planner, dict):
         raise SpecError("climb.scene_planner_overrides", "must be a mapping of dotted planner settings")
+    steep = root.get("steep_ladder") or {}
+    if not isinstance(steep, dict) or not isinstance(steep.get("planner_overrides") or {}, dict):
+        raise SpecError("climb.steep_ladder", "must be a mapping with min_incline_deg and planner_overrides")
+    if steep:
+        _num(steep, "min_incline_deg", "climb.steep_ladder")
     return ClimbSettings(
         extra_time_s=_num(run, "extra_time_s", "climb.run"),
         settle_time_s=_num(run, "settle_time_s", "climb.run"),
         failure_recovery_s=_num(run, "failure_recovery_s", "climb.run") if "failure_recovery_s" in run else 3.0,
         plan_joint_limit_margin=_num(plan, "joint_limit_margin", "climb.plan"),
         controller_overrides=dict(overrides), compliance_overrides=dict(compliance), planner_overrides=dict(planner),
-        scene_planner_overrides=dict(scene_planner),
+        scene_planner_overrides=dict(scene_planner), steep_ladder=dict(steep),
         bag_rate_hz=_num(record, "bag_rate_hz", "climb.record", positive=True),
         log_rate_hz=_num(record, "log_rate_hz", "climb.record", positive=True),
         foot_force_min=_num(judge, "foot_force_min", "climb.judge"),

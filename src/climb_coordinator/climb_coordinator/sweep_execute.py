@@ -21,12 +21,20 @@ COMMAND_DELAY_TICKS = 1
 
 def run_task(task: SweepTask) -> dict:
     """Plan one grid ladder, execute the plan: one CSV row."""
-    from planner_node.settings import load_settings
+    from climb_core.errors import SpecError
+    from climb_core.ladder import parse_scenario
+    from planner_node.settings import load_settings, settings_for_scenario
 
     from .settings import apply_planner_overrides, load_climb_settings
 
     cs = load_climb_settings()
-    row, planned = plan_task(task, apply_planner_overrides(load_settings(), dict(cs.planner_overrides)))
+    settings = apply_planner_overrides(load_settings(), dict(cs.planner_overrides))
+    try:  # the settings a climb of this ladder plans with (a steep ladder's too); a bad spec: plan_task says so
+        settings = settings_for_scenario(settings, parse_scenario(task.spec, name=task.name),
+                                         scene_overrides=cs.scene_planner_overrides, steep=cs.steep_ladder)
+    except SpecError:
+        pass
+    row, planned = plan_task(task, settings)
     row.update(executed=False, exec_failure="", exec_rungs_reached=0, exec_fell=False, exec_replans=0,
                exec_qp_failures=0, exec_sim_time_s=0.0, exec_wall_time_s=0.0, exec_max_joint_error_rad=0.0,
                exec_max_joint_error_at="")

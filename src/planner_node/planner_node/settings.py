@@ -448,7 +448,9 @@ def choose_strategy(scenario: Any, settings: PlannerSettings | None = None) -> t
     limit = f"guide_path.walk_max_incline_deg {settings.guide_path.walk_max_incline_deg:g}"
     if walked(scenario, settings):
         return "search", f"{what} (<= {limit}): walked up, the contact search chooses the treads and rails"
-    return "primitives", f"{what} (> {limit}): climbed with the {settings.planning.strategy} primitive library"
+    reason = f"{what} (> {limit}): climbed with the {settings.planning.strategy} primitive library"
+    steep = steep_reason(scenario, read_climb_overrides(key="steep_ladder"))
+    return "primitives", f"{reason}; {steep}" if steep else reason
 
 
 def scene_settings(settings: PlannerSettings, overrides_file: str | pathlib.Path = CLIMB_OVERRIDES_FILE
@@ -468,18 +470,45 @@ def scenario_settings(settings: PlannerSettings, scenario: Any) -> PlannerSettin
     return apply_overrides(settings, overrides, where="scenario.planner_overrides") if overrides else settings
 
 
+def steep_ladder(scenario: Any, steep: Mapping[str, Any]) -> bool:
+    """Whether ``scenario`` is a ladder at least ``steep["min_incline_deg"]`` steep (config/climb.yaml's
+    ``steep_ladder``; a missing or 0 bound: never)."""
+    ladder = getattr(scenario, "ladder", None)
+    bound = float(steep.get("min_incline_deg", 0.0) or 0.0)
+    return ladder is not None and bound > 0.0 and float(ladder.inclination_deg) >= bound
+
+
+def steep_reason(scenario: Any, steep: Mapping[str, Any]) -> str:
+    """What a steep ladder (:func:`steep_ladder`) plans with, for the strategy's logged reason ("" if
+    it is not one)."""
+    if not steep_ladder(scenario, steep):
+        return ""
+    keys = ", ".join(f"{k} {v:g}" if isinstance(v, (int, float)) else f"{k} {v}"
+                     for k, v in (steep.get("planner_overrides") or {}).items())
+    return (f"steep (>= {float(steep['min_incline_deg']):g} deg, climb.steep_ladder): its one-foot stances on a "
+            f"round rung lean on the grasps, planned within the controller's grasp moments ({keys})")
+
+
 def settings_for_scenario(settings: PlannerSettings, scenario: Any,
-                          scene_overrides: Mapping[str, Any] | None = None) -> PlannerSettings:
+                          scene_overrides: Mapping[str, Any] | None = None,
+                          steep: Mapping[str, Any] | None = None) -> PlannerSettings:
     """The settings a scenario is planned with, in the one order every caller uses: ``settings``
     (config/planner.yaml with the climb's planner_overrides), then for a walked scenario
     (:func:`walked`: a scene, stairs) the scene overrides (``scene_overrides``, default
-    config/climb.yaml's ``scene_planner_overrides``), then the scenario file's own
-    ``planner_overrides`` (:func:`scenario_settings`), last."""
+    config/climb.yaml's ``scene_planner_overrides``), for a steep ladder (:func:`steep_ladder`) the
+    steep ladder's (``steep``, default config/climb.yaml's ``steep_ladder``: its bound and its
+    ``planner_overrides``), then the scenario file's own ``planner_overrides``
+    (:func:`scenario_settings`), last."""
     if walked(scenario, settings):
         if scene_overrides is None:
             settings = scene_settings(settings)
         else:
             settings = apply_overrides(settings, dict(scene_overrides), where="climb.scene_planner_overrides")
+    else:
+        steep = read_climb_overrides(key="steep_ladder") if steep is None else steep
+        if steep_ladder(scenario, steep):
+            settings = apply_overrides(settings, dict(steep.get("planner_overrides") or {}),
+                                       where="climb.steep_ladder.planner_overrides")
     return scenario_settings(settings, scenario)
 
 
