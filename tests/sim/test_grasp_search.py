@@ -1,6 +1,8 @@
 """A grasp's guarded search creeps out of the palm (controller_node.tracking.PathTracker.approach_direction).
 
-The coarse grid's 84 deg / 23 cm ladder, planned as a climb plans it: the first hand's mount ends
+The coarse grid's 84 deg / 23 cm ladder, planned with the climb's planner_overrides (not the steep
+ladder's grasp moment cap a climb of it adds since 2026-12-02: this plan is the one that showed the
+fault, kept as the test's case): the first hand's mount ends
 with a path whose last 20 % runs mostly along the rung, and the hand arrives 2 cm short of the rung.
 Searching along that path slid the hand 5 cm along the rung without touching it (``no_contact``, a
 replan that did not plan, thirty-first session's sweep). Executed here up to both hands' mounts

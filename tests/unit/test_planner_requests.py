@@ -159,6 +159,30 @@ def test_a_steep_ladder_plans_within_the_controllers_grasp_moments():
     assert err.value.field.endswith("pcik.nope")
 
 
+def test_the_executing_sweep_plans_a_steep_grid_ladder_as_a_climb_does():
+    """``sweep.py --execute`` (climb_coordinator.sweep_execute.climb_plan_settings): the coarse grid's
+    86 deg ladder with the steep ladder's cap, its 74 deg ladder without, both with the climb's
+    torque headroom; a spec that does not parse keeps the climb's settings (plan_task reports it)."""
+    import dataclasses
+    import pathlib
+
+    from climb_coordinator.settings import load_climb_settings
+    from climb_coordinator.sweep_execute import climb_plan_settings
+    from planner_node.sweep import load_grid, make_tasks
+
+    cs = load_climb_settings()
+    coarse = pathlib.Path(__file__).resolve().parents[2].parent / "shared" / "bench" / "ladder_grid_coarse.yaml"
+    shallow, steep = sorted(make_tasks(load_grid(coarse), "g1", select=[(86.0, 0.32), (74.0, 0.26)]),
+                            key=lambda t: t.inclination_deg)
+    s86, s74 = climb_plan_settings(steep, cs), climb_plan_settings(shallow, cs)
+    assert s86.pcik.grasp_moment_limit == s86.planning.grasp_moment_limit == 6.0
+    assert s74.pcik.grasp_moment_limit == s74.planning.grasp_moment_limit == 0.0
+    assert s86.planning.torque_limit_fraction == s74.planning.torque_limit_fraction \
+        == cs.planner_overrides["planning.torque_limit_fraction"]
+    broken = dataclasses.replace(steep, spec={"ladder": {"type": "regular"}})
+    assert climb_plan_settings(broken, cs).planning.grasp_moment_limit == 0.0
+
+
 def test_a_malformed_steep_ladder_block_names_its_field(tmp_path):
     import yaml
 

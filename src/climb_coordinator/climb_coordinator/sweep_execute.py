@@ -21,20 +21,10 @@ COMMAND_DELAY_TICKS = 1
 
 def run_task(task: SweepTask) -> dict:
     """Plan one grid ladder, execute the plan: one CSV row."""
-    from climb_core.errors import SpecError
-    from climb_core.ladder import parse_scenario
-    from planner_node.settings import load_settings, settings_for_scenario
-
-    from .settings import apply_planner_overrides, load_climb_settings
+    from .settings import load_climb_settings
 
     cs = load_climb_settings()
-    settings = apply_planner_overrides(load_settings(), dict(cs.planner_overrides))
-    try:  # the settings a climb of this ladder plans with (a steep ladder's too); a bad spec: plan_task says so
-        settings = settings_for_scenario(settings, parse_scenario(task.spec, name=task.name),
-                                         scene_overrides=cs.scene_planner_overrides, steep=cs.steep_ladder)
-    except SpecError:
-        pass
-    row, planned = plan_task(task, settings)
+    row, planned = plan_task(task, climb_plan_settings(task, cs))
     row.update(executed=False, exec_failure="", exec_rungs_reached=0, exec_fell=False, exec_replans=0,
                exec_qp_failures=0, exec_sim_time_s=0.0, exec_wall_time_s=0.0, exec_max_joint_error_rad=0.0,
                exec_max_joint_error_at="")
@@ -49,6 +39,24 @@ def run_task(task: SweepTask) -> dict:
         row.update(executed=False, exec_failure=f"error: {type(exc).__name__}: {exc}"[:300])
     row["exec_wall_time_s"] = round(time.perf_counter() - t0, 1)
     return row
+
+
+def climb_plan_settings(task: SweepTask, cs):
+    """The planner settings a climb of ``task``'s ladder plans with: config/planner.yaml, the climb's
+    ``planner_overrides``, a steep ladder's (``climb.steep_ladder``), the spec's own; a spec that
+    does not parse gets the first two (:func:`planner_node.sweep.plan_task` then reports it)."""
+    from climb_core.errors import SpecError
+    from climb_core.ladder import parse_scenario
+    from planner_node.settings import load_settings, settings_for_scenario
+
+    from .settings import apply_planner_overrides
+
+    settings = apply_planner_overrides(load_settings(), dict(cs.planner_overrides))
+    try:
+        return settings_for_scenario(settings, parse_scenario(task.spec, name=task.name),
+                                     scene_overrides=cs.scene_planner_overrides, steep=cs.steep_ladder)
+    except SpecError:
+        return settings
 
 
 def execute_plan(task: SweepTask, planned, cs) -> dict:
