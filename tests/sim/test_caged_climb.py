@@ -21,7 +21,7 @@ import pytest
 
 from climb_checks import climb_ladder_to
 
-pytestmark = [pytest.mark.sim, pytest.mark.heavy, pytest.mark.long]  # make test-long (288 s)
+pytestmark = [pytest.mark.sim, pytest.mark.heavy, pytest.mark.long]  # make test-long (226-288 s)
 
 RUNGS = 5
 CAGE_CLEARANCE_M = 0.003  # [m] least robot-cage distance over the run (measured 0.0103)
