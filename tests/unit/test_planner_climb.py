@@ -155,3 +155,17 @@ def test_a_replan_after_the_first_hand_mounted_plans_the_rest_of_the_mount(g1, e
     assert res.subtasks[0] == library.sequences["mount"][1]
     assert np.allclose(res.plan.transitions[0].path[0], first.path[-1])
     assert all(limb_rung(res.final_state.stance, f) == 1 for f in FEET)
+
+
+def test_a_verify_report_names_the_constraint_of_its_first_infeasible_samples():
+    """The frozen check's verdict in a sweep row (failure_detail) names what broke and where: a grid
+    ladder rejected by one sample said only "1 infeasible samples, problems: []" before."""
+    from planner_node.verify import VerifyReport
+
+    rep = VerifyReport(failures=[(15, 79, "friction"), (16, 3, "torque_limit:left_knee_joint"), (17, 0, "x")],
+                       n_checked=1283)
+    text = rep.summary()
+    assert text.startswith("3 infeasible samples, transition 15 sample 79: friction, "
+                           "transition 16 sample 3: torque_limit:left_knee_joint, problems: []"), text
+    assert "transition 17" not in text
+    assert VerifyReport(n_checked=5).summary().startswith("ok; 5 configurations checked")

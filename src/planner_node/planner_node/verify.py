@@ -51,7 +51,8 @@ class VerifyReport:
         return not self.failures and not self.problems
 
     def summary(self) -> str:
-        state = "ok" if self.ok else f"{len(self.failures)} infeasible samples, problems: {self.problems[:3]}"
+        first = "".join(f", transition {ti} sample {k}: {what or '?'}" for ti, k, what in self.failures[:2])
+        state = "ok" if self.ok else f"{len(self.failures)} infeasible samples{first}, problems: {self.problems[:3]}"
         return (f"{state}; {self.n_checked} configurations checked; drift {self.max_contact_drift * 1e3:.2f} mm; "
                 f"max step {self.max_step:.3f} rad; min distance {self.min_distance * 1e3:.1f} mm; "
                 f"max load ratio {self.max_load_ratio:.2f}; feet on rungs {self.goal_feet_rungs}")
