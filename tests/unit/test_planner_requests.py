@@ -201,6 +201,24 @@ def test_a_malformed_steep_ladder_block_names_its_field(tmp_path):
         assert err.value.field == field, (bad, err.value)
 
 
+def test_the_planning_nodes_read_of_the_steep_block_names_its_field_too():
+    """planner_node.settings reads climb.steep_ladder itself (the planning nodes do not load the
+    climb's settings): a bound that is not a number of degrees, or overrides that are not a
+    mapping, are refused there by field, not with a raw ValueError."""
+    from planner_node.settings import steep_ladder
+
+    vertical = load_scenario("vertical")
+    for bad, field in (({"min_incline_deg": "steep"}, "climb.steep_ladder.min_incline_deg"),
+                       ({"min_incline_deg": 120.0}, "climb.steep_ladder.min_incline_deg"),
+                       ({"min_incline_deg": True}, "climb.steep_ladder.min_incline_deg"),
+                       ({"min_incline_deg": 84.0, "planner_overrides": [1]}, "climb.steep_ladder.planner_overrides"),
+                       ([84.0], "climb.steep_ladder")):
+        with pytest.raises(SpecError) as err:
+            steep_ladder(vertical, bad)
+        assert err.value.field == field, (bad, err.value)
+    assert steep_ladder(vertical, {"min_incline_deg": None}) is False
+
+
 def test_every_planning_caller_ranks_the_library_variants_like_the_sweep(tmp_path):
     """A grid ladder at a variant's reference (84 deg / 32 cm): the in-process climb
     (climb_coordinator.climb.plan), the graph's adaptation (pipeline.adapt) and scripts/plan.py

@@ -474,8 +474,26 @@ def steep_ladder(scenario: Any, steep: Mapping[str, Any]) -> bool:
     """Whether ``scenario`` is a ladder at least ``steep["min_incline_deg"]`` steep (config/climb.yaml's
     ``steep_ladder``; a missing or 0 bound: never)."""
     ladder = getattr(scenario, "ladder", None)
-    bound = float(steep.get("min_incline_deg", 0.0) or 0.0)
+    bound = steep_bound(steep)
     return ladder is not None and bound > 0.0 and float(ladder.inclination_deg) >= bound
+
+
+def steep_bound(steep: Mapping[str, Any]) -> float:
+    """[deg] ``steep["min_incline_deg"]`` (0 when missing or null), checked as it is read: SpecError
+    ``climb.steep_ladder.<field>`` for a bound that is not a number in [0, 90] or
+    ``planner_overrides`` that are not a mapping (the planning nodes read the block themselves;
+    the climb's own loader checks it the same way)."""
+    from climb_core.errors import SpecError
+
+    if not isinstance(steep, Mapping):
+        raise SpecError("climb.steep_ladder", f"must be a mapping, got {type(steep).__name__}")
+    bound = steep.get("min_incline_deg", 0.0)
+    bound = 0.0 if bound is None else bound
+    if isinstance(bound, bool) or not isinstance(bound, (int, float)) or not 0.0 <= float(bound) <= 90.0:
+        raise SpecError("climb.steep_ladder.min_incline_deg", f"must be a number of degrees in [0, 90], got {bound!r}")
+    if not isinstance(steep.get("planner_overrides") or {}, Mapping):
+        raise SpecError("climb.steep_ladder.planner_overrides", "must be a mapping of dotted planner settings")
+    return float(bound)
 
 
 def steep_reason(scenario: Any, steep: Mapping[str, Any]) -> str:
