@@ -193,8 +193,9 @@ def test_check_request_refuses_with_the_field(changes, field):
 
 
 @pytest.mark.parametrize("ladder, strategy, reason", [
-    ("default", "primitives", "regular ladder at 75 deg (> guide_path.walk_max_incline_deg 50)"),
-    ("stairs", "search", "stairs ladder at 35 deg (<= guide_path.walk_max_incline_deg 50): walked up"),
+    ("default", "primitives", "regular ladder at 75 deg (> guide_path.walk_max_incline_deg 60)"),
+    ("stairs", "search", "stairs ladder at 35 deg (<= guide_path.walk_max_incline_deg 60): walked up"),
+    ("ship", "search", "ship ladder at 60 deg (<= guide_path.walk_max_incline_deg 60): walked up"),
     ("step_up", "search", "a scene without a ladder"),
     ("vertical", "primitives", "vertical ladder at 90 deg"),
     ("vertical", "primitives", "steep (>= 84 deg, climb.steep_ladder)")])

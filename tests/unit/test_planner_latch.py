@@ -57,3 +57,26 @@ def test_latched_grasps_keep_their_roll_and_feet_are_untouched(g1, env):
     assert adapt.latch_grasps(off, state) is state
     q_free = adapt.ContactProjector(off, stance, moved)(moved)  # measured: 29 and 7.5 mrad of roll
     assert max(_roll(g1, hand, q, q_free) for hand in ("left_hand", "right_hand")) > 5e-3
+
+
+def test_the_generic_paths_keep_a_held_grasps_roll(g1, env):
+    """The search strategy's steps (planner_node.contact_path: a CoM shift, a foot placed with both
+    hands on their rungs) latch the grasps of the state they start from, as the primitive
+    adaptation does: the simulator's grasp is rigid. Unlatched, the ship ladder's plan rolled the
+    held hands 0.6-0.8 rad about the rails in a CoM shift; executed, the wrists were 1.1 rad off
+    their plan and the robot fell at the first re-grasp."""
+    from planner_node import contact_path
+    from planner_node.msp import Step
+
+    stance, q = fixtures.get("ladder_4_contacts", g1, env)
+    ctx = _ctx(g1, env, latch=True)
+    rng = np.random.default_rng(0)
+    # the end seed: the torso 5 cm lower and the arms turned, so that a free grasp would roll
+    q_end = q.copy()
+    q_end[2] -= 0.05
+    q_end[7:] += np.random.default_rng(1).normal(0.0, 0.08, len(q) - 7)
+    step = contact_path.com_step(ctx, adapt.ClimbState(q, stance), q_end, ("left_foot",), 0, rng)
+    assert isinstance(step, Step), step
+    path = step.segment.transition.path
+    for hand in ("left_hand", "right_hand"):
+        assert max(_roll(g1, hand, q, p) for p in path) < 2e-3, hand

@@ -128,6 +128,50 @@ def test_foot_on_a_rect_rung_is_the_four_top_face_corners_under_the_sole(g1, rec
     assert np.all((in_sole[:, 1] >= sole[:, 1].min() - 1e-9) & (in_sole[:, 1] <= sole[:, 1].max() + 1e-9))
 
 
+@pytest.mark.parametrize("limb", FEET)
+def test_a_foot_on_a_ship_ladder_tread_stands_heel_past_the_nose_on_the_part_it_covers(g1, limb):
+    """A tread no deeper than the sole is long (the shipped ship ladder's 17 cm, G1's 17 cm sole)
+    takes the Fig. 6 hold too (``sole_bar``), the sole shifted back by ``foot_on_tread_offset``
+    (config/feasibility.yaml, 4.5 cm: the heel past the nose, the sole's front under the nose of the
+    tread above); its four points span only the depth the sole covers, and the core check's contact
+    error is zero at the target. A deeper tread (stairs, 28 cm) stays a flat surface."""
+    ship = build_environment(load_scenario("ship"))
+    cfg = feasibility.load_config()
+    offset = cfg.holds.foot_on_tread_offset
+    assert offset == pytest.approx(0.045)
+    tread, above = ship.rung(1), ship.rung(2)
+    rs = g1.config.limbs[limb].surface
+    assert holds.is_sole_bar(tread, rs) and not holds.is_bar(tread)
+    hold = holds.make_hold(g1, ship, limb, "rung_1", s=0.12, params=cfg.holds)
+    target = holds.hold_target(g1, ship, hold, params=cfg.holds)
+    assert target.kind == "sole_bar" and len(hold.points) == 4
+    local = _local(tread, hold.positions)  # x along the tread, y toward the robot, z up
+    _, hy, hz = tread.half_extents
+    length, _ = holds.sole_extent(rs)
+    T = target.T_world_surface
+    centre = _local(tread, T[:3, 3][None])[0]
+    np.testing.assert_allclose(centre, [0.12, offset, hz], atol=1e-9)  # moved back toward the robot
+    # the points span the depth the sole covers: from the nose (y = hy) to the sole's front
+    assert sorted({round(float(v), 9) for v in local[:, 1]}) == pytest.approx(sorted([hy, offset - length / 2]))
+    np.testing.assert_allclose(local[:, 2], hz, atol=1e-12)
+    assert offset + length / 2 - hy == pytest.approx(offset)  # the heel past the nose (G1: sole as long as the tread)
+    # the sole's front is where the nose of the tread above is, along the ladder
+    toe = tread.position + np.asarray(tread.T_world_surface)[:3, 1] * (offset - length / 2)
+    above_nose = above.position + np.asarray(above.T_world_surface)[:3, 1] * hy
+    forward = holds.ladder_forward(ship)
+    assert float((toe - above_nose) @ forward) == pytest.approx(0.0, abs=2e-3)
+    # every point under the sole polygon: the core check's contact error is zero at the target
+    sole = holds.sole_vertices_in_surface(rs)
+    in_sole = (hold.positions - T[:3, 3]) @ T[:3, :3]
+    assert np.all(np.abs(in_sole[:, 2]) < 1e-9)
+    assert np.all((in_sole[:, 0] >= sole[:, 0].min() - 1e-9) & (in_sole[:, 0] <= sole[:, 0].max() + 1e-9))
+    assert np.all((in_sole[:, 1] >= sole[:, 1].min() - 1e-9) & (in_sole[:, 1] <= sole[:, 1].max() + 1e-9))
+    stairs = build_environment(load_scenario("stairs"))
+    assert not holds.is_sole_bar(stairs.rung(1), rs)
+    flat = holds.make_hold(g1, stairs, limb, "rung_1", s=0.0, params=cfg.holds)
+    assert holds.hold_kind(g1, stairs, flat) == "sole_flat"
+
+
 def test_the_four_contact_fixture_holds_the_bars_and_holds_read_back(g1, rect):
     """The ``ladder_4_contacts`` fixture on the rect ladder (feet across a bar, hands around a bar):
     contact error ~0 in the core check, the holds read back from the configuration."""

@@ -29,7 +29,8 @@ Geometry (all world frame):
   sole on a cylinder touches it along the line where it is tangent): the rung then pushes the foot
   back as well as up. A hold keeps its pitch in its normals; :func:`hold_target` reads it there.
 - rectangular rungs (``is_bar``: a box of role ``rung``, the rect rungs of regular, vertical and
-  A-frame ladders; ship and stairs treads stay flat surfaces). A hand ``grasp`` on a bar (any
+  A-frame ladders; treads are for feet only, and a tread deeper than the sole is long - stairs -
+  is a flat surface, the whole sole on it). A hand ``grasp`` on a bar (any
   bilateral box) that fits the hand (:func:`check_grasp_fits`: with the palm on the bar's face
   toward the robot, its depth within the grasp surface's ``max_bar.depth``, its thickness within
   ``max_bar.width``; else a SpecError naming ``ladder.rung.depth`` / ``ladder.rung.thickness``
@@ -41,8 +42,12 @@ Geometry (all world frame):
   (config/feasibility.yaml: 30, as on a cylinder, the roll the primitives were designed with; the
   IK leaves the roll free on a bar as on a cylinder). A ``sole`` on a bar, kind ``sole_bar`` (the
   ladder paper's Fig. 6 foot hold): the four corners of the bar's top face under the sole (along
-  the bar: the sole width apart, or ``foot_on_rung_spacing``; across: the bar's depth), normals
-  up; unilateral. Target: as on a cylinder, the sole on the top face above the centre line.
+  the bar: the sole width apart, or ``foot_on_rung_spacing``; across: the part of the bar's depth
+  the sole covers), normals up; unilateral. Target: as on a cylinder, the sole on the top face
+  above the centre line, shifted back by ``foot_on_rung_offset``. A tread no deeper than the sole
+  is long (:func:`is_sole_bar`: a ship ladder's) takes the same hold, its centre shifted back by
+  ``foot_on_tread_offset``: the ball of the foot on the tread and the heel past its nose, as people
+  stand on ship ladders, so that the toes are not under the tread above.
 
 ``s`` is the position along the surface axis (local x of the surface; cylinders are along local
 x) measured from the surface centre [m]. On the ground plane the sole centre is given by
@@ -78,7 +83,12 @@ class HoldParams:
         "this far above the horizontal through the axis (90 = palm on top)"))
     foot_on_rung_offset: float = param(0.0, unit="m", description=(
         "sole centre shift along the foot's forward axis from the rung's top line (positive: "
-        "the heel moves toward the ladder)"))
+        "back toward the robot, the ball of the foot on the rung)"))
+    foot_on_tread_offset: float = param(0.045, unit="m", min=0.0, description=(
+        "the same shift on a tread no deeper than the sole is long (a ship ladder's, is_sole_bar): "
+        "the heel this far past the tread's nose (0.045: the shipped ship ladder's 17 cm treads "
+        "overhang the one below by 4.5 cm, so G1's 17 cm sole then ends under the nose of the tread "
+        "above; centred, its toes were under it and every step up backed the foot off first)"))
     foot_on_rung_pitch_deg: float = param(0.0, unit="deg", min=-30.0, max=30.0, description=(
         "pitch of a sole on a round rung about the rung axis, toes up: the flat sole is tangent to the "
         "rung where the rung's normal leans this far back toward the robot, so the rung pushes the foot "
@@ -288,6 +298,18 @@ def is_bar(sf: Any) -> bool:
     return getattr(sf, "shape", "") == "box" and getattr(sf, "role", "") == "rung"
 
 
+def is_sole_bar(sf: Any, rs: Any) -> bool:
+    """A sole stands across ``sf`` like on a rect rung (``sole_bar``, the paper's Fig. 6 hold): a
+    rect rung, or a tread no deeper than the sole is long (a ship ladder's 17 cm treads under G1's
+    17 cm sole: the sole may overhang its nose, the contact polygon being the tread's top under the
+    sole); a deeper tread (stairs) is a flat surface the whole sole stands on."""
+    if getattr(rs, "kind", "") != "sole" or getattr(sf, "shape", "") != "box":
+        return False
+    if is_bar(sf):
+        return True
+    return getattr(sf, "role", "") == "tread" and bar_section(sf)[0] <= sole_extent(rs)[0] + 1e-6
+
+
 def _along_axis(sf: Any) -> bool:
     """Holds on ``sf`` are placed along its local x axis (a cylinder or a bar)."""
     return sf.shape == "cylinder" or is_bar(sf)
@@ -407,7 +429,7 @@ def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: f
     if rs.kind not in ("sole", "palm"):
         raise SpecError(f"robot.{rs.name}.kind", f"unknown contact surface kind {rs.kind!r}")
     sign = sole_normal_sign(robot, limb) if rs.kind == "sole" else 1.0
-    if sf.shape == "cylinder" or (is_bar(sf) and rs.kind == "sole"):
+    if sf.shape == "cylinder" or is_sole_bar(sf, rs):
         _check_along(sf, s, surface_name, axis_length=_axis_length(sf))
         p0, a = _cylinder_axis(sf)
         n = _top_normal(a)
@@ -415,7 +437,8 @@ def surface_target_pose(robot: Any, env: Any, limb: str, surface_name: str, s: f
         fwd = _unit(_perp(fwd, a)) if np.linalg.norm(_perp(fwd, a)) > 1e-9 else _unit(np.cross(a, n))
         if sf.shape == "cylinder" and rs.kind == "sole" and params.foot_on_rung_pitch_deg:
             n, fwd = _pitched(n, fwd, params.foot_on_rung_pitch_deg)
-        centre = p0 + s * a + n * _top_height(sf) - fwd * params.foot_on_rung_offset
+        offset = params.foot_on_tread_offset if getattr(sf, "role", "") == "tread" else params.foot_on_rung_offset
+        centre = p0 + s * a + n * _top_height(sf) - fwd * offset
         R = _frame_from_zx(-sign * n, fwd)
         return _pose(R, centre), (f"{rs.kind}_cylinder" if sf.shape == "cylinder" else "sole_bar")
     if sf.shape in ("plane", "box"):
@@ -550,9 +573,17 @@ def make_hold(robot: Any, env: Any, limb: str, surface_name: str, s: float = 0.0
         _, width = sole_extent(rs)
         half = 0.5 * (params.foot_on_rung_spacing or width)
         if kind == "sole_bar":  # the paper's Fig. 6: the 4 corners of the top face under the sole
-            across = np.asarray(sf.T_world_surface)[:3, 1] * float(np.asarray(sf.half_extents)[1])
-            pts = tuple(ContactPoint(centre_line + sa * half * a + sc * across, n)
-                        for sa, sc in ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)))
+            y = np.asarray(sf.T_world_surface)[:3, 1]
+            hy = float(np.asarray(sf.half_extents)[1])
+            # the part of the top face's depth the sole covers (a sole shifted off the centre line of a
+            # tread as deep as the sole, foot_on_tread_offset: its heel past the nose)
+            sole_y = (sole_vertices_in_surface(rs) @ T[:3, :3].T + T[:3, 3] - centre_line) @ y
+            lo, hi = max(-hy, float(sole_y.min())), min(hy, float(sole_y.max()))
+            if hi - lo < 1e-3:
+                raise SpecError("hold.position", f"the {limb} sole does not cover {surface_name!r} (shifted "
+                                                 f"{float((T[:3, 3] - centre_line) @ y):.3f} m off its centre line)")
+            pts = tuple(ContactPoint(centre_line + sa * half * a + sc * y, n)
+                        for sa, sc in ((-1.0, lo), (1.0, lo), (1.0, hi), (-1.0, hi)))
         else:
             pts = tuple(ContactPoint(centre_line + sgn * half * a, n) for sgn in (-1.0, 1.0))
         return Hold(limb=limb, robot_surface=rs.name, env_surface=surface_name, points=pts, friction=mu)
@@ -579,7 +610,7 @@ def hold_from_configuration(robot: Any, env: Any, q: np.ndarray, limb: str, surf
     pin.framesForwardKinematics(robot.model, data, np.asarray(q, dtype=float))
     T_wf = data.oMf[robot.frame_id(rs.frame)].homogeneous
     T_ws = T_wf @ np.asarray(rs.T_frame_surface)
-    if sf.shape == "cylinder" or (is_bar(sf) and rs.kind != "palm"):
+    if sf.shape == "cylinder" or (is_bar(sf) and rs.kind != "palm") or is_sole_bar(sf, rs):
         p0, a = _cylinder_axis(sf)
         s = float(a @ (T_ws[:3, 3] - p0))
         half = 0.5 * _axis_length(sf)
@@ -601,7 +632,7 @@ def hold_kind(robot: Any, env: Any, hold: Hold) -> str:
     sf = env_surface(env, hold.env_surface)
     if rs.kind == "grasp":
         return "grasp"
-    if rs.kind == "sole" and is_bar(sf):
+    if is_sole_bar(sf, rs):
         return "sole_bar"
     return f"{rs.kind}_cylinder" if sf.shape == "cylinder" else f"{rs.kind}_flat"
 

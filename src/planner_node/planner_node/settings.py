@@ -287,8 +287,8 @@ class GuidePathParams:
     yaw_sigma: float = param(0.2, unit="rad", min=0.0, description="std dev of a biased sample's yaw around the goal direction")
     goal_samples: int = param(40, unit="-", min=1, description="goal configurations tried within the tolerance")
     shortcut_iterations: int = param(30, unit="-", min=0, description="random shortcut attempts on the found path")
-    walk_max_incline_deg: float = param(50.0, unit="deg", min=0.0, max=90.0, description=(
-        "a ladder this steep or less (stairs: 20-50 deg) is walked up: its milestones stand on the treads, "
+    walk_max_incline_deg: float = param(60.0, unit="deg", min=0.0, max=90.0, description=(
+        "a ladder this steep or less (stairs: 20-50 deg, ship ladders: 50-60 deg) is walked up: its milestones stand on the treads, "
         "the base over the feet in the standing posture, instead of the climbing stance's (the base behind "
         "the rungs)"))
     time_limit_s: float = param(5.0, unit="s", min=0.01, description="wall-time limit of one guide path")
