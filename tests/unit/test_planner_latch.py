@@ -16,7 +16,8 @@ from planner_node.contact_path import empty_library
 
 def _ctx(g1, env, latch: bool):
     s = settings_mod.load_settings()
-    s = dataclasses.replace(s, projection=dataclasses.replace(s.projection, latch_grasps=latch))
+    s = dataclasses.replace(s, projection=dataclasses.replace(s.projection, latch_grasps=latch),
+                            contact_path=dataclasses.replace(s.contact_path, latch_grasps=latch))
     return adapt.AdaptContext(g1, env, empty_library(g1), s)
 
 
@@ -60,9 +61,10 @@ def test_latched_grasps_keep_their_roll_and_feet_are_untouched(g1, env):
 
 
 def test_the_generic_paths_keep_a_held_grasps_roll(g1, env):
-    """The search strategy's steps (planner_node.contact_path: a CoM shift, a foot placed with both
-    hands on their rungs) latch the grasps of the state they start from, as the primitive
-    adaptation does: the simulator's grasp is rigid. Unlatched, the ship ladder's plan rolled the
+    """With ``contact_path.latch_grasps`` (the ship ladder's file sets it) the search strategy's
+    steps (planner_node.contact_path: here a CoM shift with both hands on their rungs) latch the
+    grasps of the state they start from, as the primitive adaptation does: the simulator's grasp
+    is rigid. Unlatched, the ship ladder's plan rolled the
     held hands 0.6-0.8 rad about the rails in a CoM shift; executed, the wrists were 1.1 rad off
     their plan and the robot fell at the first re-grasp."""
     from planner_node import contact_path

@@ -20,11 +20,12 @@ its primitives' paths (III-C, Algorithm 1 and the projected interpolation):
   configuration in equilibrium without the limb that moves next. The controller's FSM releases
   that limb when it executes the next transition (select -> remove -> unload), as for ladder plans.
 
-Every step starts from its state with each closed grasp latched at its roll about the bar
-(:func:`planner_node.adapt.latch_grasps`, as the primitive adaptation does): the simulator's grasp
-is rigid, and a plan that rolls a held hand about its rail twists the wrist against it (measured
-on the ship ladder: 0.6-0.8 rad of planned roll in a CoM shift, 1.1 rad of wrist-yaw tracking
-error, a fall at the first re-grasp).
+With ``contact_path.latch_grasps`` every step starts from its state with each closed grasp latched
+at its roll about the bar (:func:`planner_node.adapt.latch_grasps`, as the primitive adaptation
+does): the simulator's grasp is rigid, and a plan that rolls a held hand about its rail twists the
+wrist against it (measured on the ship ladder: 0.6-0.8 rad of planned roll in a CoM shift, 1.1 rad
+of wrist-yaw tracking error). Off by default (the stairs ladder's adaptation ran out of time with
+it); the ship ladder's file sets it.
 
 Both return an :class:`~planner_node.msp.Step` (or an AttemptFailure naming the constraint) whose
 Transition the FSM executes: ``place_foot`` / ``place_hand`` with the moving limb (the FSM's
@@ -196,6 +197,11 @@ def lift_height(ctx: A.AdaptContext, path: Sequence[np.ndarray], limb: str, old:
 # steps
 
 
+def _latched(ctx: A.AdaptContext, state: A.ClimbState) -> A.ClimbState:
+    """``state`` with its closed grasps latched (``contact_path.latch_grasps``), else as it is."""
+    return A.latch_grasps(ctx, state) if ctx.settings.contact_path.latch_grasps else state
+
+
 def _seed(ctx: A.AdaptContext, q: np.ndarray, attempt: int, rng: np.random.Generator) -> np.ndarray:
     return q if attempt == 0 else A._perturb(ctx, q, attempt, rng)
 
@@ -208,7 +214,7 @@ def transfer_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, hold: Hol
     if limb not in ctx.robot.config.limbs:
         raise SpecError(f"{name or 'transfer'}.limb", f"the robot has no limb {limb!r}")
     name = name or f"{transfer_name(limb)}_{limb}"
-    state = A.latch_grasps(ctx, state)  # a closed grasp keeps its roll about the bar (the simulator's grasp is rigid)
+    state = _latched(ctx, state)  # a closed grasp keeps its roll about the bar (the simulator's grasp is rigid)
     old = state.stance.hold(limb)
     sigma_e = Stance(state.stance.with_hold(hold).holds, name=name)
     sigma_t = Stance(tuple(h for h in sigma_e.holds if h.limb != limb), name=f"{name}:transfer")
@@ -307,7 +313,7 @@ def free_step(ctx: A.AdaptContext, state: A.ClimbState, limb: str, q_end: np.nda
     hand: folded to the reference posture first), in equilibrium on the other holds. The Transition has the moving limb and no hold for it in its target stance
     (the FSM: remove, then the path, then the next transition). The later steps keep that limb's
     posture (:func:`keep_limb_posture`)."""
-    state = A.latch_grasps(ctx, state)
+    state = _latched(ctx, state)
     old = state.stance.hold(limb)
     if old is None:
         raise SpecError(f"{name or 'free'}.limb", f"{limb} holds nothing to leave")
@@ -380,7 +386,7 @@ def com_step(ctx: A.AdaptContext, state: A.ClimbState, q_end: np.ndarray, unload
              rng: np.random.Generator, name: str = "") -> Step | AttemptFailure:
     """Shift the CoM with every hold of ``state`` kept, to a configuration near ``q_end`` that is
     also in equilibrium without each limb of ``unload`` (the limb released next)."""
-    state = A.latch_grasps(ctx, state)
+    state = _latched(ctx, state)
     stance = state.stance
     unload = tuple(u for u in unload if u and stance.hold(u) is not None)
     name = name or com_name(unload)

@@ -319,6 +319,12 @@ class ContactPathParams:
         "way-points between the lift-off and the approach point"))
     com_weight: float = param(10000.0, unit="1/m^2", min=0.0, description=(
         "way-point IK: cost of the CoM's horizontal distance to its target (between the end configurations' CoMs)"))
+    latch_grasps: bool = param(False, unit="-", description=(
+        "each step starts from its state with every closed grasp latched at its roll about the bar "
+        "(planner_node.adapt.latch_grasps, as the primitive adaptation does with projection.latch_grasps): the "
+        "simulator's grasp is rigid. Off by default: with it the stairs ladder's adaptation ran out of time "
+        "(sub-task 11, reach:left_foot); the ship ladder sets it (config/ladders/ship.yaml: unlatched, a CoM "
+        "shift rolled its held hands 0.6-0.8 rad and the wrist tracked 1.1 rad off)"))
     backtrack_window: int = param(-1, unit="-", min=-1, description=(
         "the adaptation of a contact plan stops (stuck) when the sub-task this far below the deepest one "
         "reached has exhausted its attempts (-1: backtrack without bound, MSP-Recurse)"))
