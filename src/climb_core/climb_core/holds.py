@@ -310,9 +310,12 @@ def is_sole_bar(sf: Any, rs: Any) -> bool:
     return getattr(sf, "role", "") == "tread" and bar_section(sf)[0] <= sole_extent(rs)[0] + 1e-6
 
 
-def _along_axis(sf: Any) -> bool:
-    """Holds on ``sf`` are placed along its local x axis (a cylinder or a bar)."""
-    return sf.shape == "cylinder" or is_bar(sf)
+def held_along_axis(sf: Any, rs: Any) -> bool:
+    """Whether the robot surface ``rs`` holds ``sf`` at a position ``s`` along its local x axis (a
+    cylinder; a rect rung, for a sole or a grasp; a tread no deeper than the sole, for a sole:
+    :func:`is_sole_bar`) rather than at a free position on a face (a palm on a bar, a sole on a
+    plane or a deeper tread)."""
+    return sf.shape == "cylinder" or (is_bar(sf) and rs.kind != "palm") or is_sole_bar(sf, rs)
 
 
 def bar_section(sf: Any) -> tuple[float, float]:
@@ -610,7 +613,7 @@ def hold_from_configuration(robot: Any, env: Any, q: np.ndarray, limb: str, surf
     pin.framesForwardKinematics(robot.model, data, np.asarray(q, dtype=float))
     T_wf = data.oMf[robot.frame_id(rs.frame)].homogeneous
     T_ws = T_wf @ np.asarray(rs.T_frame_surface)
-    if sf.shape == "cylinder" or (is_bar(sf) and rs.kind != "palm") or is_sole_bar(sf, rs):
+    if held_along_axis(sf, rs):
         p0, a = _cylinder_axis(sf)
         s = float(a @ (T_ws[:3, 3] - p0))
         half = 0.5 * _axis_length(sf)

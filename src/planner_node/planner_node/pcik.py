@@ -201,7 +201,7 @@ class _ContactRows:
             T_ws = data.oMf[fid].homogeneous @ np.asarray(rs.T_frame_surface)
             sf = holds_mod.env_surface(self.env, c.surface)
             kwargs: dict[str, Any] = {}
-            if sf.shape == "cylinder" or (holds_mod.is_bar(sf) and rs.kind != "palm") or holds_mod.is_sole_bar(sf, rs):  # along the rung
+            if holds_mod.held_along_axis(sf, rs):  # along the rung
                 a = np.asarray(sf.T_world_surface)[:3, 0]
                 s = float(a @ (T_ws[:3, 3] - np.asarray(sf.T_world_surface)[:3, 3]))
                 half = 0.5 * float(sf.length) - 0.05
